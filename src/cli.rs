@@ -1,0 +1,96 @@
+//! Command-line definitions (clap). One subcommand per stage, plus helpers.
+
+use clap::{Args, Parser, Subcommand};
+use std::path::PathBuf;
+
+/// skillaug: robust interaction skills from sparse, noisy demonstrations.
+#[derive(Debug, Parser)]
+#[command(name = "skillaug", version, about, long_about = None)]
+pub struct Cli {
+    /// The stage or helper to run.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Read motion clips (.pt) into clips.parquet and frames.parquet
+    Ingest(IngestArgs),
+    /// Summarise a skillaug Parquet file: rows, clips, skills, frames, value ranges
+    Inspect(InspectArgs),
+    /// Print a table's schema, one field per line
+    Schema(SchemaArgs),
+    /// Run a benchmark and print its figures (ingest)
+    Bench(BenchArgs),
+}
+
+/// Flags every stage takes, so stages chain on one run folder.
+#[derive(Debug, Clone, Args)]
+pub struct StageArgs {
+    /// Run folder the stage reads from and writes to.
+    #[arg(long, value_name = "DIR", default_value = "runs/default")]
+    pub out: PathBuf,
+    /// Dataset manifest: a name in datasets/ (ballplay, ballplay-m, locomotion, parahome) or a .toml path.
+    #[arg(long, value_name = "NAME", conflicts_with = "from")]
+    pub dataset: Option<String>,
+    /// A plain folder of .pt clips instead of a manifest (skill = parent folder name).
+    #[arg(long, value_name = "DIR")]
+    pub from: Option<PathBuf>,
+    /// Folder holding the releases (ballplay/, ballplay-m/, locomotion/, parahome/).
+    #[arg(long, value_name = "DIR", env = "SKILLAUG_DATA")]
+    pub data_root: Option<PathBuf>,
+    /// Recipe file (TOML, one table per stage).
+    #[arg(long, value_name = "FILE")]
+    pub recipe: Option<PathBuf>,
+    /// Override a setting: --set stage.key=value (repeatable; wins over the recipe).
+    #[arg(long, value_name = "STAGE.KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Random seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
+    /// No progress bar and no summary.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// `skillaug ingest`.
+#[derive(Debug, Args)]
+pub struct IngestArgs {
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub common: StageArgs,
+    /// Ingest the good clips and list the bad ones instead of failing.
+    #[arg(long)]
+    pub skip_bad: bool,
+}
+
+/// `skillaug inspect`.
+#[derive(Debug, Args)]
+pub struct InspectArgs {
+    /// A Parquet file written by skillaug.
+    pub file: PathBuf,
+}
+
+/// `skillaug schema`.
+#[derive(Debug, Args)]
+pub struct SchemaArgs {
+    /// Table name (clips, frames).
+    pub name: String,
+}
+
+/// `skillaug bench`.
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// Benchmark name (ingest).
+    pub name: String,
+    /// Repetitions; the median is reported.
+    #[arg(long, default_value_t = 5)]
+    pub repeat: usize,
+    /// Folder holding the releases.
+    #[arg(long, value_name = "DIR", env = "SKILLAUG_DATA")]
+    pub data_root: Option<PathBuf>,
+}

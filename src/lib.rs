@@ -1,0 +1,30 @@
+//! skillaug: a data toolkit and trainer for robust interaction skills learned
+//! from sparse, noisy motion-capture clips (the SkillMimic-V2 method on top of
+//! SkillMimic's reinforcement learning from interaction demonstrations).
+//!
+//! Pure domain code lives in [`motion`]; [`pt`] reads PyTorch clip files;
+//! [`table`] is the only code that touches Arrow/Parquet; [`stage`] holds one
+//! thin file per subcommand.
+#![warn(missing_docs)]
+
+pub mod cli;
+pub mod config;
+pub mod dataset;
+pub mod motion;
+pub mod progress;
+pub mod pt;
+pub mod stage;
+pub mod table;
+
+use anyhow::Result;
+use cli::{Cli, Command};
+
+/// Run one parsed command line.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Ingest(a) => stage::ingest::run(&stage::Common::new(a.common)?, a.skip_bad),
+        Command::Inspect(a) => stage::inspect::run(&a.file),
+        Command::Schema(a) => stage::schema::run(&a.name),
+        Command::Bench(a) => stage::bench::run(&a.name, a.repeat, a.data_root),
+    }
+}

@@ -1,0 +1,9 @@
+//! Motion data: layouts, skeletons, quaternion maths and the per-frame state
+//! derived from a clip tensor. Pure code, no I/O.
+
+pub mod clip;
+pub mod layout;
+pub mod quat;
+
+pub use clip::{ClipFrames, DeriveOptions};
+pub use layout::{Layout, Skeleton};

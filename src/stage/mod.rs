@@ -1,0 +1,127 @@
+//! Thin glue, one file per subcommand: read inputs, call the library, write
+//! outputs, print a summary.
+
+pub mod bench;
+pub mod ingest;
+pub mod inspect;
+pub mod schema;
+
+use crate::cli::StageArgs;
+use crate::config::{self, Recipe, SetArg};
+use crate::table::io::Staged;
+use anyhow::{Context, Result};
+use arrow::record_batch::RecordBatch;
+use serde::{de::DeserializeOwned, Serialize};
+use std::path::{Path, PathBuf};
+
+/// What every stage gets: its common arguments, the recipe and the overrides.
+pub struct Common {
+    /// The parsed common flags.
+    pub args: StageArgs,
+    /// The recipe (empty without `--recipe`).
+    pub recipe: Recipe,
+    /// `--set` overrides.
+    pub sets: Vec<SetArg>,
+}
+
+impl Common {
+    /// Parse the recipe and overrides, and size the thread pool.
+    pub fn new(args: StageArgs) -> Result<Common> {
+        if let Some(n) = args.threads {
+            // Ignore the error of a second initialisation (tests call stages twice).
+            let _ = rayon::ThreadPoolBuilder::new().num_threads(n).build_global();
+        }
+        let recipe = match &args.recipe {
+            Some(p) => Recipe::load(p)?,
+            None => Recipe::default(),
+        };
+        let sets = args
+            .set
+            .iter()
+            .map(|s| s.parse())
+            .collect::<Result<Vec<SetArg>>>()?;
+        Ok(Common { args, recipe, sets })
+    }
+
+    /// The resolved settings of `stage`.
+    pub fn settings<T: Serialize + DeserializeOwned + Default>(&self, stage: &str) -> Result<T> {
+        config::resolve(&self.recipe, stage, &self.sets)
+    }
+
+    /// The text of `<stage>.resolved.toml`.
+    pub fn resolved_toml<T: Serialize>(&self, stage: &str, settings: &T) -> Result<String> {
+        let a = &self.args;
+        let mut t = toml::Table::new();
+        t.insert("version".into(), env!("CARGO_PKG_VERSION").into());
+        t.insert("seed".into(), toml::Value::Integer(a.seed as i64));
+        if let Some(d) = &a.dataset {
+            t.insert("dataset".into(), d.clone().into());
+        }
+        if let Some(f) = &a.from {
+            t.insert("from".into(), f.display().to_string().into());
+        }
+        if let Some(r) = &a.recipe {
+            t.insert("recipe".into(), r.display().to_string().into());
+        }
+        let sets: Vec<toml::Value> = a.set.iter().map(|s| s.clone().into()).collect();
+        t.insert("set".into(), toml::Value::Array(sets));
+        config::resolved_toml(stage, settings, &t)
+    }
+}
+
+/// The outputs of one stage in its run folder, committed all at once.
+pub struct Outputs {
+    dir: PathBuf,
+    created: bool,
+    staged: Option<Staged>,
+}
+
+impl Outputs {
+    /// Prepare `dir` (created if missing; removed again if the stage fails
+    /// before committing and the folder is still empty).
+    pub fn new(dir: &Path) -> Result<Outputs> {
+        let created = !dir.exists();
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create the output folder {}", dir.display()))?;
+        Ok(Outputs {
+            dir: dir.to_path_buf(),
+            created,
+            staged: Some(Staged::new()),
+        })
+    }
+
+    /// Stage `<dir>/<name>` as Parquet.
+    pub fn parquet(
+        &mut self,
+        name: &str,
+        batch: &RecordBatch,
+        meta: &[(String, String)],
+    ) -> Result<()> {
+        let dest = self.dir.join(name);
+        self.staged.as_mut().unwrap().parquet(&dest, batch, meta)
+    }
+
+    /// Stage `<dir>/<name>` as text.
+    pub fn text(&mut self, name: &str, text: &str) -> Result<()> {
+        let dest = self.dir.join(name);
+        self.staged.as_mut().unwrap().text(&dest, text)
+    }
+
+    /// Move every staged output into place.
+    pub fn commit(mut self) -> Result<()> {
+        self.staged.take().unwrap().commit()
+    }
+}
+
+impl Drop for Outputs {
+    fn drop(&mut self) {
+        // Temporary files remove themselves when dropped; an uncommitted stage
+        // also removes the folder it created, if nothing else is in it.
+        if let Some(staged) = self.staged.take() {
+            drop(staged);
+            if self.created {
+                let _ = std::fs::remove_dir(&self.dir);
+            }
+        }
+    }
+}

@@ -1,0 +1,130 @@
+//! The Parquet tables: the only code that builds or reads Arrow arrays.
+//!
+//! Each table has a documented column list ([`ColumnSpec`]), a schema version
+//! and key-value metadata (`skillaug.*` keys). Metadata lives in the Parquet
+//! file's key-value list, in a fixed order, rather than in the Arrow schema,
+//! whose metadata is a hash map and would make the bytes of a file depend on
+//! the process: outputs must be byte-identical for identical inputs.
+//! `skillaug schema NAME` prints a table's columns; `schemas/NAME.txt` holds
+//! the same text, checked by a test.
+
+pub mod clips;
+pub mod columns;
+pub mod frames;
+pub mod io;
+
+use arrow::datatypes::{DataType, Field, Schema};
+use std::sync::Arc;
+
+/// Version of the table layouts written by this build.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// One documented column.
+#[derive(Debug, Clone)]
+pub struct ColumnSpec {
+    /// Column name.
+    pub name: &'static str,
+    /// Arrow type.
+    pub dtype: DataType,
+    /// Whether nulls may occur.
+    pub nullable: bool,
+    /// Meaning and units.
+    pub doc: &'static str,
+}
+
+impl ColumnSpec {
+    /// A column.
+    pub fn new(name: &'static str, dtype: DataType, nullable: bool, doc: &'static str) -> Self {
+        ColumnSpec {
+            name,
+            dtype,
+            nullable,
+            doc,
+        }
+    }
+}
+
+/// `List<Float32>` with non-null items.
+pub fn f32_list() -> DataType {
+    DataType::List(Arc::new(Field::new("item", DataType::Float32, false)))
+}
+
+/// `FixedSizeList<Float32, n>` with non-null items.
+pub fn f32_fixed(n: i32) -> DataType {
+    DataType::FixedSizeList(Arc::new(Field::new("item", DataType::Float32, false)), n)
+}
+
+/// `List<Utf8>` with non-null items.
+pub fn str_list() -> DataType {
+    DataType::List(Arc::new(Field::new("item", DataType::Utf8, false)))
+}
+
+/// The Arrow schema of a column list.
+pub fn schema_of(cols: &[ColumnSpec]) -> Arc<Schema> {
+    Arc::new(Schema::new(
+        cols.iter()
+            .map(|c| Field::new(c.name, c.dtype.clone(), c.nullable))
+            .collect::<Vec<_>>(),
+    ))
+}
+
+/// Names of the tables `skillaug schema` knows.
+pub const TABLES: &[&str] = &["clips", "frames"];
+
+/// The columns of table `name`.
+pub fn columns_of(name: &str) -> Option<Vec<ColumnSpec>> {
+    match name {
+        "clips" => Some(clips::columns()),
+        "frames" => Some(frames::columns()),
+        _ => None,
+    }
+}
+
+/// Readable type name: `List<Float32>`, `FixedSizeList<Float32, 3>`, ...
+pub fn type_name(t: &DataType) -> String {
+    match t {
+        DataType::List(f) => format!("List<{}>", type_name(f.data_type())),
+        DataType::LargeList(f) => format!("LargeList<{}>", type_name(f.data_type())),
+        DataType::FixedSizeList(f, n) => format!("FixedSizeList<{}, {n}>", type_name(f.data_type())),
+        other => format!("{other:?}"),
+    }
+}
+
+/// The schema text of table `name`: a header, then one field per line.
+pub fn schema_text(name: &str) -> Option<String> {
+    let cols = columns_of(name)?;
+    let mut s = format!(
+        "# skillaug table `{name}` (`{name}.parquet`), schema version {SCHEMA_VERSION}\n\
+         # name: type, null?  -- meaning\n"
+    );
+    let w = cols.iter().map(|c| c.name.len()).max().unwrap_or(0);
+    for c in &cols {
+        let t = format!(
+            "{}{}",
+            type_name(&c.dtype),
+            if c.nullable { ", nullable" } else { "" }
+        );
+        s.push_str(&format!("{:<w$}: {:<36} -- {}\n", c.name, t, c.doc));
+    }
+    Some(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn schema_golden_files_match() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas");
+        for name in TABLES {
+            let want = std::fs::read_to_string(dir.join(format!("{name}.txt")))
+                .unwrap_or_else(|e| panic!("schemas/{name}.txt: {e}"));
+            assert_eq!(
+                schema_text(name).unwrap(),
+                want,
+                "schemas/{name}.txt differs from `skillaug schema {name}`: \
+                 re-bless with `skillaug schema {name} > schemas/{name}.txt` if the change is intended"
+            );
+        }
+    }
+}

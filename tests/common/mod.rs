@@ -1,0 +1,140 @@
+//! Helpers shared by the integration tests: the real binary, temporary run
+//! folders, and a writer of PyTorch-style `.pt` files for hand-made clips.
+#![allow(dead_code)]
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The shipped data beside the checkout.
+pub fn data_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/datasets")
+}
+
+/// Run the real binary with `args` in the checkout.
+pub fn skillaug(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_skillaug"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env_remove("SKILLAUG_DATA")
+        .output()
+        .expect("run skillaug")
+}
+
+/// Run and require success, returning stdout.
+pub fn ok(args: &[&str]) -> String {
+    let o = skillaug(args);
+    assert!(
+        o.status.success(),
+        "skillaug {args:?} failed:\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// Run and require exit code 1, returning stderr.
+pub fn fails(args: &[&str]) -> String {
+    let o = skillaug(args);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(1), "skillaug {args:?}: expected exit 1, stderr:\n{err}");
+    err
+}
+
+/// Names of the entries in `dir` (empty if it does not exist).
+pub fn entries(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|r| {
+            r.filter_map(|e| e.ok())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+/// Pickle opcodes used below (protocol 2, as torch.save writes them).
+fn global(out: &mut Vec<u8>, module: &str, name: &str) {
+    out.push(b'c');
+    out.extend_from_slice(format!("{module}\n{name}\n").as_bytes());
+}
+fn unicode(out: &mut Vec<u8>, s: &str) {
+    out.push(b'X');
+    out.extend_from_slice(&(s.len() as u32).to_le_bytes());
+    out.extend_from_slice(s.as_bytes());
+}
+fn int(out: &mut Vec<u8>, v: i32) {
+    out.push(b'J');
+    out.extend_from_slice(&v.to_le_bytes());
+}
+
+/// The pickle torch.save writes for one tensor of `shape` and `stride` over a
+/// storage of class `storage` (e.g. FloatStorage) holding `numel` elements.
+pub fn tensor_pickle(storage: &str, numel: usize, shape: &[usize], stride: &[usize]) -> Vec<u8> {
+    let mut p = vec![0x80, 2];
+    global(&mut p, "torch._utils", "_rebuild_tensor_v2");
+    p.push(b'(');
+    p.push(b'(');
+    unicode(&mut p, "storage");
+    global(&mut p, "torch", storage);
+    unicode(&mut p, "0");
+    unicode(&mut p, "cpu");
+    int(&mut p, numel as i32);
+    p.push(b't');
+    p.push(b'Q');
+    int(&mut p, 0);
+    p.push(b'(');
+    for s in shape {
+        int(&mut p, *s as i32);
+    }
+    p.push(b't');
+    p.push(b'(');
+    for s in stride {
+        int(&mut p, *s as i32);
+    }
+    p.push(b't');
+    p.push(0x89); // NEWFALSE: requires_grad
+    global(&mut p, "collections", "OrderedDict");
+    p.push(b')');
+    p.push(b'R');
+    p.push(b't');
+    p.push(b'R');
+    p.push(b'.');
+    p
+}
+
+/// A torch-style zip archive with `data.pkl`, `data/0` and `version`.
+pub fn pt_archive(pickle: &[u8], storage: &[u8]) -> Vec<u8> {
+    let mut buf = std::io::Cursor::new(Vec::new());
+    {
+        let mut z = zip::ZipWriter::new(&mut buf);
+        let opt = zip::write::SimpleFileOptions::default()
+            .compression_method(zip::CompressionMethod::Stored);
+        for (name, bytes) in [
+            ("archive/data.pkl", pickle),
+            ("archive/data/0", storage),
+            ("archive/version", b"3\n".as_slice()),
+        ] {
+            z.start_file(name, opt).unwrap();
+            z.write_all(bytes).unwrap();
+        }
+        z.finish().unwrap();
+    }
+    buf.into_inner()
+}
+
+/// A `.pt` file of a float32 `[rows, cols]` matrix.
+pub fn f32_pt(rows: usize, cols: usize, data: &[f32]) -> Vec<u8> {
+    assert_eq!(data.len(), rows * cols);
+    let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_le_bytes()).collect();
+    pt_archive(
+        &tensor_pickle("FloatStorage", rows * cols, &[rows, cols], &[cols, 1]),
+        &bytes,
+    )
+}
+
+/// The values of a real clip, read with the project's reader.
+pub fn read_clip(path: &Path) -> (usize, usize, Vec<f32>) {
+    let m = skillaug::pt::read_f32_matrix(&std::fs::read(path).unwrap()).unwrap();
+    (m.rows, m.cols, m.data)
+}
