@@ -197,7 +197,7 @@ pub fn load_manifest(path: &Path) -> Result<Manifest> {
             m.dataset.skeleton
         );
     }
-    if !(m.dataset.fps > 0.0) {
+    if !m.dataset.fps.is_finite() || m.dataset.fps <= 0.0 {
         bail!("manifest {}: fps must be positive", path.display());
     }
     for (split, names) in &m.splits {

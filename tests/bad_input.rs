@@ -25,27 +25,53 @@ fn rejects_folder(dir: &Path, bad_name: &str, problem: &str) {
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("frames.parquet"), b"earlier output").unwrap();
     let from = dir.join("clips");
-    let err = fails(&["ingest", "--from", from.to_str().unwrap(), "--out", out.to_str().unwrap()]);
-    assert!(err.contains(bad_name), "message does not name {bad_name}:\n{err}");
+    let err = fails(&[
+        "ingest",
+        "--from",
+        from.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains(bad_name),
+        "message does not name {bad_name}:\n{err}"
+    );
     assert!(
         err.to_lowercase().contains(&problem.to_lowercase()),
         "message does not say `{problem}`:\n{err}"
     );
     assert_eq!(entries(&out), ["frames.parquet"], "output folder changed");
-    assert_eq!(std::fs::read(out.join("frames.parquet")).unwrap(), b"earlier output");
+    assert_eq!(
+        std::fs::read(out.join("frames.parquet")).unwrap(),
+        b"earlier output"
+    );
 
     // A fresh output folder is not even created.
     let fresh = dir.join("fresh");
-    fails(&["ingest", "--from", from.to_str().unwrap(), "--out", fresh.to_str().unwrap()]);
+    fails(&[
+        "ingest",
+        "--from",
+        from.to_str().unwrap(),
+        "--out",
+        fresh.to_str().unwrap(),
+    ]);
     assert!(!fresh.exists(), "a failed run left {}", fresh.display());
 
     // --skip-bad ingests the good clip and lists the bad one.
     let o = skillaug(&[
-        "ingest", "--from", from.to_str().unwrap(), "--out", fresh.to_str().unwrap(), "--skip-bad",
+        "ingest",
+        "--from",
+        from.to_str().unwrap(),
+        "--out",
+        fresh.to_str().unwrap(),
+        "--skip-bad",
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "--skip-bad failed: {err}");
-    assert!(err.contains("skipped 1 bad clip") && err.contains(bad_name), "{err}");
+    assert!(
+        err.contains("skipped 1 bad clip") && err.contains(bad_name),
+        "{err}"
+    );
     assert!(String::from_utf8_lossy(&o.stdout).contains("ingested 1 clips"));
 }
 
@@ -84,17 +110,29 @@ fn int_tensor() {
 
 #[test]
 fn wrong_column_count() {
-    rejects("013_wide.pt", &f32_pt(3, 336, &vec![0.5; 3 * 336]), "336 columns");
+    rejects(
+        "013_wide.pt",
+        &f32_pt(3, 336, &vec![0.5; 3 * 336]),
+        "336 columns",
+    );
 }
 
 #[test]
 fn nan_and_inf_values() {
     let (f, d, mut x) = read_clip(&data_root().join(GOOD));
     x[5 * d + 100] = f32::NAN;
-    rejects("013_nan.pt", &f32_pt(f, d, &x), "non-finite value NaN at frame 5, column 100");
+    rejects(
+        "013_nan.pt",
+        &f32_pt(f, d, &x),
+        "non-finite value NaN at frame 5, column 100",
+    );
     x[5 * d + 100] = 0.0;
     x[7 * d + 2] = f32::INFINITY;
-    rejects("013_inf.pt", &f32_pt(f, d, &x), "non-finite value inf at frame 7, column 2");
+    rejects(
+        "013_inf.pt",
+        &f32_pt(f, d, &x),
+        "non-finite value inf at frame 7, column 2",
+    );
 }
 
 #[test]
@@ -112,23 +150,51 @@ fn unreadable_file() {
 fn unknown_dataset_and_manifest_keys() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("o");
-    let err = fails(&["ingest", "--dataset", "nope", "--out", out.to_str().unwrap()]);
-    assert!(err.contains("unknown dataset `nope`") && err.contains("ballplay"), "{err}");
-    assert!(!out.exists());
-
-    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/ballplay.toml"))
-        .unwrap()
-        .replace("fps = 60", "fps = 60\nframe_rate = 60");
-    let m = dir.path().join("odd.toml");
-    std::fs::write(&m, text).unwrap();
-    let err = fails(&["ingest", "--dataset", m.to_str().unwrap(), "--out", out.to_str().unwrap()]);
-    assert!(err.contains("odd.toml") && err.contains("frame_rate"), "{err}");
-
     let err = fails(&[
-        "ingest", "--dataset", "ballplay-m", "--set", "ingest.split=pickup-5", "--out",
+        "ingest",
+        "--dataset",
+        "nope",
+        "--out",
         out.to_str().unwrap(),
     ]);
-    assert!(err.contains("unknown split `pickup-5`") && err.contains("pickup-4"), "{err}");
+    assert!(
+        err.contains("unknown dataset `nope`") && err.contains("ballplay"),
+        "{err}"
+    );
+    assert!(!out.exists());
+
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/ballplay.toml"),
+    )
+    .unwrap()
+    .replace("fps = 60", "fps = 60\nframe_rate = 60");
+    let m = dir.path().join("odd.toml");
+    std::fs::write(&m, text).unwrap();
+    let err = fails(&[
+        "ingest",
+        "--dataset",
+        m.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains("odd.toml") && err.contains("frame_rate"),
+        "{err}"
+    );
+
+    let err = fails(&[
+        "ingest",
+        "--dataset",
+        "ballplay-m",
+        "--set",
+        "ingest.split=pickup-5",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains("unknown split `pickup-5`") && err.contains("pickup-4"),
+        "{err}"
+    );
     assert!(!out.exists());
 }
 
@@ -136,16 +202,17 @@ fn unknown_dataset_and_manifest_keys() {
 fn changed_clip_is_refused_by_hash() {
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path().join("data");
-    for (rel, _) in [(GOOD, ())] {
-        let dst: PathBuf = root.join(rel);
-        std::fs::create_dir_all(dst.parent().unwrap()).unwrap();
-        std::fs::copy(data_root().join(rel), &dst).unwrap();
-    }
-    // Change one value in the storage (float bytes near the end of the file).
+    let dst: PathBuf = root.join(GOOD);
+    std::fs::create_dir_all(dst.parent().unwrap()).unwrap();
+    std::fs::copy(data_root().join(GOOD), &dst).unwrap();
+    // Change one value of the clip.
     let (f, d, mut x) = read_clip(&root.join(GOOD));
     x[0] += 1.0;
     std::fs::write(root.join(GOOD), f32_pt(f, d, &x)).unwrap();
-    let manifest = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/ballplay.toml")).unwrap();
+    let manifest = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/ballplay.toml"),
+    )
+    .unwrap();
     // Keep only the run_4 clip.
     let mut kept = String::new();
     for block in manifest.split("\n[[clip]]\n") {
@@ -160,17 +227,36 @@ fn changed_clip_is_refused_by_hash() {
     std::fs::write(&m, kept).unwrap();
     let out = dir.path().join("out");
     let err = fails(&[
-        "ingest", "--dataset", m.to_str().unwrap(), "--data-root", root.to_str().unwrap(), "--out",
+        "ingest",
+        "--dataset",
+        m.to_str().unwrap(),
+        "--data-root",
+        root.to_str().unwrap(),
+        "--out",
         out.to_str().unwrap(),
     ]);
-    assert!(err.contains("013_018pickle_run_4.pt") && err.contains("sha256"), "{err}");
+    assert!(
+        err.contains("013_018pickle_run_4.pt") && err.contains("sha256"),
+        "{err}"
+    );
     assert!(!out.exists());
 }
 
 #[test]
 fn missing_data_root_says_where_to_put_the_releases() {
-    let err = fails(&["ingest", "--dataset", "ballplay", "--data-root", "/nonexistent/skillaug", "--out", "/tmp/never"]);
-    assert!(err.contains("/nonexistent/skillaug") && err.contains("BallPlay-M"), "{err}");
+    let err = fails(&[
+        "ingest",
+        "--dataset",
+        "ballplay",
+        "--data-root",
+        "/nonexistent/skillaug",
+        "--out",
+        "/tmp/never",
+    ]);
+    assert!(
+        err.contains("/nonexistent/skillaug") && err.contains("BallPlay-M"),
+        "{err}"
+    );
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_skillaug"))
         .args(["ingest", "--dataset", "ballplay", "--out", "/tmp/never"])
         .env("SKILLAUG_DATA", "/nonexistent/env-root")
@@ -187,12 +273,36 @@ fn unknown_recipe_and_set_keys_are_errors() {
     let recipe = dir.path().join("r.toml");
     std::fs::write(&recipe, "[ingest]\nsplitt = \"pickup-4\"\n").unwrap();
     let out = dir.path().join("o");
-    let err = fails(&["ingest", "--dataset", "ballplay", "--recipe", recipe.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let err = fails(&[
+        "ingest",
+        "--dataset",
+        "ballplay",
+        "--recipe",
+        recipe.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(err.contains("splitt") && err.contains("r.toml"), "{err}");
-    let err = fails(&["ingest", "--dataset", "ballplay", "--set", "ingest.fsp=30", "--out", out.to_str().unwrap()]);
+    let err = fails(&[
+        "ingest",
+        "--dataset",
+        "ballplay",
+        "--set",
+        "ingest.fsp=30",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(err.contains("fsp") && err.contains("--set"), "{err}");
     std::fs::write(&recipe, "[injest]\nfps = 30\n").unwrap();
-    let err = fails(&["ingest", "--dataset", "ballplay", "--recipe", recipe.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let err = fails(&[
+        "ingest",
+        "--dataset",
+        "ballplay",
+        "--recipe",
+        recipe.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(err.contains("[injest]") && err.contains("r.toml"), "{err}");
     assert!(!out.exists());
 }

@@ -16,7 +16,17 @@ fn help_lists_every_subcommand_with_one_line() {
         assert!(line.trim().len() > cmd.len() + 10, "no description: {line}");
     }
     let ingest = ok(&["ingest", "--help"]);
-    for flag in ["--out", "--dataset", "--from", "--seed", "--quiet", "--set", "--recipe", "--data-root", "--skip-bad"] {
+    for flag in [
+        "--out",
+        "--dataset",
+        "--from",
+        "--seed",
+        "--quiet",
+        "--set",
+        "--recipe",
+        "--data-root",
+        "--skip-bad",
+    ] {
         assert!(ingest.contains(flag), "ingest --help lacks {flag}");
     }
 }
@@ -38,33 +48,65 @@ fn schema_prints_the_golden_files() {
 fn inspect_summarises_frames_per_skill() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    ok(&["ingest", "--dataset", "ballplay", "--out", out.to_str().unwrap(), "-q"]);
+    ok(&[
+        "ingest",
+        "--dataset",
+        "ballplay",
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
     let s = ok(&["inspect", out.join("frames.parquet").to_str().unwrap()]);
     assert!(s.contains("table     frames"), "{s}");
     assert!(s.contains("clips     6"), "{s}");
     assert!(s.contains("frames    796 (796 valid)"), "{s}");
     assert!(s.contains("skills    5"), "{s}");
     // run = DF: two clips of 81 frames
-    let run = s.lines().find(|l| l.trim_start().starts_with("run ")).unwrap();
+    let run = s
+        .lines()
+        .find(|l| l.trim_start().starts_with("run "))
+        .unwrap();
     let nums: Vec<&str> = run.split_whitespace().collect();
     assert_eq!(nums[1..4], ["162", "2", "162"], "{run}");
     let root = s.lines().find(|l| l.starts_with("root_pos ")).unwrap();
     assert!(root.contains(".."), "{root}");
     let s = ok(&["inspect", out.join("clips.parquet").to_str().unwrap()]);
-    assert!(s.contains("table     clips") && s.contains("skills    5"), "{s}");
-    let err = fails(&["inspect", out.join("ingest.resolved.toml").to_str().unwrap()]);
-    assert!(err.contains("ingest.resolved.toml") && err.contains("not a Parquet file"), "{err}");
+    assert!(
+        s.contains("table     clips") && s.contains("skills    5"),
+        "{s}"
+    );
+    let err = fails(&[
+        "inspect",
+        out.join("ingest.resolved.toml").to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains("ingest.resolved.toml") && err.contains("not a Parquet file"),
+        "{err}"
+    );
 }
 
 #[test]
 fn resolved_settings_follow_defaults_recipe_set() {
     let dir = tempfile::tempdir().unwrap();
     let recipe = dir.path().join("r.toml");
-    std::fs::write(&recipe, "[ingest]\nangvel_frame = \"world\"\nskills = [\"run\", \"shot\"]\n").unwrap();
+    std::fs::write(
+        &recipe,
+        "[ingest]\nangvel_frame = \"world\"\nskills = [\"run\", \"shot\"]\n",
+    )
+    .unwrap();
     let out = dir.path().join("run");
     let stdout = ok(&[
-        "ingest", "--dataset", "ballplay", "--recipe", recipe.to_str().unwrap(), "--set",
-        "ingest.skills=[\"run\"]", "--seed", "3", "--out", out.to_str().unwrap(),
+        "ingest",
+        "--dataset",
+        "ballplay",
+        "--recipe",
+        recipe.to_str().unwrap(),
+        "--set",
+        "ingest.skills=[\"run\"]",
+        "--seed",
+        "3",
+        "--out",
+        out.to_str().unwrap(),
     ]);
     assert!(stdout.contains("ingested 2 clips"), "{stdout}");
     let text = std::fs::read_to_string(out.join("ingest.resolved.toml")).unwrap();

@@ -5,8 +5,7 @@
 mod common;
 
 use arrow::array::{
-    Array, AsArray, BooleanArray, FixedSizeListArray, ListArray, StringArray,
-    UInt32Array,
+    Array, AsArray, BooleanArray, FixedSizeListArray, ListArray, StringArray, UInt32Array,
 };
 use arrow::datatypes::Float32Type;
 use common::*;
@@ -17,7 +16,9 @@ use std::path::Path;
 fn f32_rows(t: &ReadTable, name: &str) -> Vec<Option<Vec<f32>>> {
     let mut out = Vec::new();
     for b in &t.batches {
-        let col = b.column_by_name(name).unwrap_or_else(|| panic!("no column {name}"));
+        let col = b
+            .column_by_name(name)
+            .unwrap_or_else(|| panic!("no column {name}"));
         for i in 0..col.len() {
             if col.is_null(i) {
                 out.push(None);
@@ -55,7 +56,9 @@ fn strs(t: &ReadTable, name: &str) -> Vec<String> {
         .flat_map(|b| {
             let a = b.column_by_name(name).unwrap();
             let a = a.as_any().downcast_ref::<StringArray>().unwrap();
-            (0..a.len()).map(|i| a.value(i).to_string()).collect::<Vec<_>>()
+            (0..a.len())
+                .map(|i| a.value(i).to_string())
+                .collect::<Vec<_>>()
         })
         .collect()
 }
@@ -129,7 +132,11 @@ fn check_against_tensors(out: &Path, expect_clips: usize) {
         };
         let (f, d, x) = read_clip(&path);
         assert_eq!(f as u32, n_frames[c], "{src}");
-        let (nj, body_start, nb) = if d == 337 { (52, 165, 53) } else { (60, 189, 61) };
+        let (nj, body_start, nb) = if d == 337 {
+            (52, 165, 53)
+        } else {
+            (60, 189, 61)
+        };
         let objs: &[(usize, usize)] = match d {
             337 => &[(324, 327)],
             409 => &[(402, 405)],
@@ -141,7 +148,11 @@ fn check_against_tensors(out: &Path, expect_clips: usize) {
             let r = &x[i * d..(i + 1) * d];
             let k = row + i;
             assert_eq!(clip_id[k] as usize, c);
-            assert_eq!(bits(root_pos[k].as_ref().unwrap()), bits(&r[0..3]), "{src} frame {i}");
+            assert_eq!(
+                bits(root_pos[k].as_ref().unwrap()),
+                bits(&r[0..3]),
+                "{src} frame {i}"
+            );
             assert_eq!(bits(root_exp[k].as_ref().unwrap()), bits(&r[3..6]));
             assert_eq!(bits(joint[k].as_ref().unwrap()), bits(&r[9..9 + 3 * nj]));
             assert_eq!(
@@ -153,7 +164,12 @@ fn check_against_tensors(out: &Path, expect_clips: usize) {
             let sign = if d == 337 { -1.0f32 } else { 1.0 };
             let oe: Vec<f32> = objs
                 .iter()
-                .flat_map(|o| r[o.1..o.1 + 3].iter().map(|v| sign * v + 0.0).collect::<Vec<_>>())
+                .flat_map(|o| {
+                    r[o.1..o.1 + 3]
+                        .iter()
+                        .map(|v| sign * v + 0.0)
+                        .collect::<Vec<_>>()
+                })
                 .collect();
             assert_eq!(bits(obj_exp[k].as_ref().unwrap()), bits(&oe));
             assert_eq!(contact[k], Some(r[d - 1] == 1.0));
@@ -163,7 +179,10 @@ fn check_against_tensors(out: &Path, expect_clips: usize) {
             let q = root_rot[k].as_ref().unwrap();
             let want_q = quat_from_expmap([r[3] as f64, r[4] as f64, r[5] as f64]);
             let dotq: f64 = (0..4).map(|j| q[j] as f64 * want_q[j]).sum();
-            assert!((dotq.abs() - 1.0).abs() < 1e-5, "{src} {i}: {q:?} vs {want_q:?}");
+            assert!(
+                (dotq.abs() - 1.0).abs() < 1e-5,
+                "{src} {i}: {q:?} vs {want_q:?}"
+            );
             if i == 0 {
                 assert_eq!(root_lin[k].as_ref().unwrap(), &[0.0; 3]);
                 assert_eq!(root_ang[k].as_ref().unwrap(), &[0.0; 3]);
@@ -176,7 +195,10 @@ fn check_against_tensors(out: &Path, expect_clips: usize) {
             for j in 0..3 {
                 let want = (r[j] as f64 - p[j] as f64) * dt;
                 let got = root_lin[k].as_ref().unwrap()[j] as f64;
-                assert!((got - want).abs() <= 1e-5 * want.abs().max(1.0), "{src} {i}");
+                assert!(
+                    (got - want).abs() <= 1e-5 * want.abs().max(1.0),
+                    "{src} {i}"
+                );
             }
             for j in 0..3 * nj {
                 let want = (r[9 + j] as f64 - p[9 + j] as f64) * dt;
@@ -187,7 +209,12 @@ fn check_against_tensors(out: &Path, expect_clips: usize) {
             // w/fps (in its own frame) gives the current one.
             let w = root_ang[k].as_ref().unwrap();
             let step = quat_from_expmap([w[0] as f64 / dt, w[1] as f64 / dt, w[2] as f64 / dt]);
-            let pq = [prev_q[0] as f64, prev_q[1] as f64, prev_q[2] as f64, prev_q[3] as f64];
+            let pq = [
+                prev_q[0] as f64,
+                prev_q[1] as f64,
+                prev_q[2] as f64,
+                prev_q[3] as f64,
+            ];
             let composed = [
                 pq[3] * step[0] + pq[0] * step[3] + pq[1] * step[2] - pq[2] * step[1],
                 pq[3] * step[1] - pq[0] * step[2] + pq[1] * step[3] + pq[2] * step[0],
@@ -195,7 +222,10 @@ fn check_against_tensors(out: &Path, expect_clips: usize) {
                 pq[3] * step[3] - pq[0] * step[0] - pq[1] * step[1] - pq[2] * step[2],
             ];
             let agree: f64 = (0..4).map(|j| composed[j] * q[j] as f64).sum();
-            assert!(agree.abs() > 1.0 - 1e-6, "{src} {i}: angular velocity {w:?}");
+            assert!(
+                agree.abs() > 1.0 - 1e-6,
+                "{src} {i}: angular velocity {w:?}"
+            );
         }
         row += f;
     }
@@ -203,11 +233,19 @@ fn check_against_tensors(out: &Path, expect_clips: usize) {
 
 #[test]
 fn every_dataset_ingests_bit_exact_with_reference_velocities() {
-    for (name, clips) in [("ballplay", 6), ("ballplay-m", 58), ("locomotion", 12), ("parahome", 7)] {
+    for (name, clips) in [
+        ("ballplay", 6),
+        ("ballplay-m", 58),
+        ("locomotion", 12),
+        ("parahome", 7),
+    ] {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("run");
         let stdout = ok(&["ingest", "--dataset", name, "--out", out.to_str().unwrap()]);
-        assert!(stdout.contains(&format!("ingested {clips} clips")), "{stdout}");
+        assert!(
+            stdout.contains(&format!("ingested {clips} clips")),
+            "{stdout}"
+        );
         check_against_tensors(&out, clips);
         assert_eq!(
             entries(&out),
@@ -220,12 +258,22 @@ fn every_dataset_ingests_bit_exact_with_reference_velocities() {
 fn clips_table_records_manifest_facts() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    ok(&["ingest", "--dataset", "parahome", "--out", out.to_str().unwrap(), "-q"]);
+    ok(&[
+        "ingest",
+        "--dataset",
+        "parahome",
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
     let clips = read_parquet(&out.join("clips.parquet")).unwrap();
     let labels = strs(&clips, "label");
     assert!(labels.contains(&"Stand-Chair".to_string()));
     let layouts = strs(&clips, "layout");
-    let kettlecup = strs(&clips, "skill").iter().position(|s| s == "pour_kettlecup").unwrap();
+    let kettlecup = strs(&clips, "skill")
+        .iter()
+        .position(|s| s == "pour_kettlecup")
+        .unwrap();
     assert_eq!(layouts[kettlecup], "D415");
     let class = clips.batches[0]
         .column_by_name("class")
@@ -246,14 +294,29 @@ fn clips_table_records_manifest_facts() {
 fn locomotion_drops_the_dummy_ball_and_splits_select_clips() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("loco");
-    ok(&["ingest", "--dataset", "locomotion", "--out", out.to_str().unwrap(), "-q"]);
+    ok(&[
+        "ingest",
+        "--dataset",
+        "locomotion",
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
     let frames = read_parquet(&out.join("frames.parquet")).unwrap();
-    assert!(f32_rows(&frames, "obj_pos").iter().all(|r| r.as_ref().unwrap().is_empty()));
+    assert!(f32_rows(&frames, "obj_pos")
+        .iter()
+        .all(|r| r.as_ref().unwrap().is_empty()));
 
     let out = dir.path().join("pick");
     ok(&[
-        "ingest", "--dataset", "ballplay-m", "--set", "ingest.split=pickup-4", "--out",
-        out.to_str().unwrap(), "-q",
+        "ingest",
+        "--dataset",
+        "ballplay-m",
+        "--set",
+        "ingest.split=pickup-4",
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
     ]);
     let clips = read_parquet(&out.join("clips.parquet")).unwrap();
     assert_eq!(
@@ -275,15 +338,26 @@ fn outputs_are_byte_identical_across_runs_and_thread_counts() {
     for (k, threads) in ["2", "2", "1"].iter().enumerate() {
         let out = dir.path().join(format!("r{k}"));
         ok(&[
-            "ingest", "--dataset", "ballplay", "--seed", "7", "--threads", threads, "--out",
-            out.to_str().unwrap(), "-q",
+            "ingest",
+            "--dataset",
+            "ballplay",
+            "--seed",
+            "7",
+            "--threads",
+            threads,
+            "--out",
+            out.to_str().unwrap(),
+            "-q",
         ]);
         files.push((
             std::fs::read(out.join("frames.parquet")).unwrap(),
             std::fs::read(out.join("clips.parquet")).unwrap(),
         ));
     }
-    assert!(files[0] == files[1], "same seed and threads, different bytes");
+    assert!(
+        files[0] == files[1],
+        "same seed and threads, different bytes"
+    );
     assert!(files[0] == files[2], "thread count changed the bytes");
 }
 
@@ -298,7 +372,14 @@ fn missing_frames_become_invalid_rows_with_carried_velocities() {
     }
     std::fs::write(src.join("013_test_missing.pt"), f32_pt(f, d, &x)).unwrap();
     let out = dir.path().join("run");
-    ok(&["ingest", "--from", dir.path().join("clips").to_str().unwrap(), "--out", out.to_str().unwrap(), "-q"]);
+    ok(&[
+        "ingest",
+        "--from",
+        dir.path().join("clips").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
 
     let clips = read_parquet(&out.join("clips.parquet")).unwrap();
     assert_eq!(u32s(&clips, "valid_frames"), [f as u32 - 3]);
@@ -329,8 +410,15 @@ fn missing_frames_become_invalid_rows_with_carried_velocities() {
 fn pyarrow_reads_the_tables() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    ok(&["ingest", "--dataset", "ballplay", "--out", out.to_str().unwrap(), "-q"]);
-    let script = r#"
+    ok(&[
+        "ingest",
+        "--dataset",
+        "ballplay",
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
+    let script = r##"
 import sys, pyarrow.parquet as pq
 out = sys.argv[1]
 clips = pq.read_table(out + "/clips.parquet")
@@ -348,7 +436,7 @@ assert meta[b"skillaug.table"] == b"frames" and meta[b"skillaug.quaternion_order
 row = frames.slice(0, 1).to_pylist()[0]
 assert len(row["joint_rot"]) == 156 and len(row["body_pos"]) == 159
 print("pyarrow", clips.num_rows, frames.num_rows)
-"#;
+"##;
     let python = python_with_pyarrow();
     let o = std::process::Command::new(&python)
         .arg("-c")
@@ -394,7 +482,10 @@ fn python_with_pyarrow() -> std::path::PathBuf {
                 .status()
                 .map(|s| s.success())
                 .unwrap_or(false);
-        assert!(made, "this test needs Python 3 with pyarrow: `pip install pyarrow` (bash .ci/run does)");
+        assert!(
+            made,
+            "this test needs Python 3 with pyarrow: `pip install pyarrow` (bash .ci/run does)"
+        );
     }
     py
 }

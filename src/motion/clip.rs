@@ -385,10 +385,7 @@ mod tests {
             *v = 0.0;
         }
         let c = derive(&x, Layout::BallPlay337, &opts(1)).unwrap();
-        assert_eq!(
-            c.valid,
-            [true, true, true, false, false, true, true, true]
-        );
+        assert_eq!(c.valid, [true, true, true, false, false, true, true, true]);
         let v = |i: usize| &c.root_linvel[i * 3..i * 3 + 3];
         assert_eq!(v(0), [0.0; 3]);
         let expect2: Vec<f32> = (0..3)
@@ -422,7 +419,11 @@ mod tests {
         let mut x = synthetic(f);
         for i in 0..f {
             let a = 2.6 + 0.03 * i as f32;
-            let wrapped = if a > std::f32::consts::PI { a - 2.0 * std::f32::consts::PI } else { a };
+            let wrapped = if a > std::f32::consts::PI {
+                a - 2.0 * std::f32::consts::PI
+            } else {
+                a
+            };
             x[i * 337 + 3..i * 337 + 6].copy_from_slice(&[0.0, 0.0, wrapped]);
         }
         let c = derive(&x, Layout::BallPlay337, &opts(1)).unwrap();
@@ -457,7 +458,14 @@ mod tests {
         x[2 * 337 + 12] = f32::NAN;
         let e = derive(&x, Layout::BallPlay337, &opts(1)).unwrap_err();
         assert!(
-            matches!(e, DeriveError::NonFinite { frame: 2, column: 12, .. }),
+            matches!(
+                e,
+                DeriveError::NonFinite {
+                    frame: 2,
+                    column: 12,
+                    ..
+                }
+            ),
             "{e}"
         );
         assert!(e.to_string().contains("joint 1 (L_Knee)"), "{e}");

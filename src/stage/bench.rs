@@ -28,7 +28,10 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn ingest(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
     let tmp = tempfile::tempdir()?;
     let mut totals = vec![0.0; repeat];
-    println!("{:<12} {:>8} {:>10} {:>12}", "dataset", "frames", "median s", "frames/s");
+    println!(
+        "{:<12} {:>8} {:>10} {:>12}",
+        "dataset", "frames", "median s", "frames/s"
+    );
     let mut all_frames = 0u64;
     for name in DATASETS {
         let out = tmp.path().join(name);
@@ -69,7 +72,10 @@ fn ingest(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
             .sum::<u64>();
         all_frames += frames;
         let m = median(times);
-        println!("{name:<12} {frames:>8} {m:>10.3} {:>12.0}", frames as f64 / m);
+        println!(
+            "{name:<12} {frames:>8} {m:>10.3} {:>12.0}",
+            frames as f64 / m
+        );
     }
     let m = median(totals);
     println!(

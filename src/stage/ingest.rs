@@ -223,7 +223,11 @@ pub fn run(common: &Common, skip_bad_flag: bool) -> Result<()> {
     let clips_meta = with_table("clips", &meta);
     let frames_meta = with_table("frames", &meta);
     out.parquet("clips.parquet", &table::clips::batch(&rows)?, &clips_meta)?;
-    out.parquet("frames.parquet", &table::frames::batch(&inputs)?, &frames_meta)?;
+    out.parquet(
+        "frames.parquet",
+        &table::frames::batch(&inputs)?,
+        &frames_meta,
+    )?;
     out.text("ingest.resolved.toml", &resolved)?;
     out.commit()?;
 
@@ -262,19 +266,40 @@ fn metadata(
         .collect();
     let s = |v: &str| v.to_string();
     Ok(vec![
-        (s("skillaug.schema_version"), table::SCHEMA_VERSION.to_string()),
+        (
+            s("skillaug.schema_version"),
+            table::SCHEMA_VERSION.to_string(),
+        ),
         (s("skillaug.version"), s(env!("CARGO_PKG_VERSION"))),
         (s("skillaug.dataset"), s(dataset)),
         (s("skillaug.skeleton"), s(skeleton.name())),
         (s("skillaug.n_joints"), skeleton.n_joints().to_string()),
         (s("skillaug.n_bodies"), skeleton.n_bodies().to_string()),
-        (s("skillaug.body_names"), serde_json::to_string(skeleton.body_names())?),
+        (
+            s("skillaug.body_names"),
+            serde_json::to_string(skeleton.body_names())?,
+        ),
         (s("skillaug.quaternion_order"), s("xyzw")),
         (s("skillaug.fps"), fps_text),
-        (s("skillaug.angvel_frame"), serde_json::to_value(cfg.angvel_frame)?.as_str().unwrap_or_default().to_string()),
-        (s("skillaug.obj_angvel"), serde_json::to_value(cfg.obj_angvel)?.as_str().unwrap_or_default().to_string()),
+        (
+            s("skillaug.angvel_frame"),
+            serde_json::to_value(cfg.angvel_frame)?
+                .as_str()
+                .unwrap_or_default()
+                .to_string(),
+        ),
+        (
+            s("skillaug.obj_angvel"),
+            serde_json::to_value(cfg.obj_angvel)?
+                .as_str()
+                .unwrap_or_default()
+                .to_string(),
+        ),
         (s("skillaug.source_sha256"), serde_json::to_string(&hashes)?),
-        (s("skillaug.config_hash"), crate::config::hash_text(resolved)),
+        (
+            s("skillaug.config_hash"),
+            crate::config::hash_text(resolved),
+        ),
     ])
 }
 
@@ -286,7 +311,10 @@ fn print_summary(clips: &[Ingested], out: &std::path::Path, secs: f64) {
         e.1 += c.frames.frames;
         e.2 += c.frames.frames as f64 / c.fps;
     }
-    println!("{:<16} {:>5} {:>7} {:>8}", "skill", "clips", "frames", "secs");
+    println!(
+        "{:<16} {:>5} {:>7} {:>8}",
+        "skill", "clips", "frames", "secs"
+    );
     for (skill, (n, f, s)) in &per {
         println!("{skill:<16} {n:>5} {f:>7} {s:>8.2}");
     }

@@ -28,7 +28,11 @@ pub fn run(path: &Path) -> Result<()> {
 /// The summary text of `path`.
 pub fn summary(path: &Path) -> Result<String> {
     let meta = read_metadata(path)?;
-    let get = |k: &str| meta.iter().find(|(key, _)| key == k).map(|(_, v)| v.clone());
+    let get = |k: &str| {
+        meta.iter()
+            .find(|(key, _)| key == k)
+            .map(|(_, v)| v.clone())
+    };
     let df = read(path)?;
     let mut out = String::new();
     let table = get("skillaug.table").unwrap_or_else(|| "(not written by skillaug)".into());
@@ -44,7 +48,11 @@ pub fn summary(path: &Path) -> Result<String> {
     }
     out += &format!("rows      {}\ncolumns   {}\n", df.height(), df.width());
 
-    let names: Vec<String> = df.get_column_names().iter().map(|s| s.to_string()).collect();
+    let names: Vec<String> = df
+        .get_column_names()
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
     let has = |c: &str| names.iter().any(|n| n == c);
     let mut lf = df.clone().lazy();
     let mut skill_ok = has("skill");
@@ -82,7 +90,11 @@ pub fn summary(path: &Path) -> Result<String> {
             .agg(aggs)
             .sort(["skill"], Default::default())
             .collect()?;
-        out += &format!("skills    {}\n\nper skill\n{}\n", per.height(), render(&per)?);
+        out += &format!(
+            "skills    {}\n\nper skill\n{}\n",
+            per.height(),
+            render(&per)?
+        );
     }
     out += &format!("\ncolumns\n{}", ranges(&df)?);
     Ok(out)
@@ -91,7 +103,10 @@ pub fn summary(path: &Path) -> Result<String> {
 /// One line per column: type, nulls, and min/max (numbers, flattened lists),
 /// true count (booleans) or distinct values (strings).
 fn ranges(df: &DataFrame) -> Result<String> {
-    let mut s = format!("{:<16} {:<22} {:>7}  {}\n", "column", "type", "nulls", "range");
+    let mut s = format!(
+        "{:<16} {:<22} {:>7}  {}\n",
+        "column", "type", "nulls", "range"
+    );
     for c in df.columns() {
         let series = c.as_materialized_series();
         let flat = series.explode(ExplodeOptions {
@@ -138,10 +153,19 @@ fn render(df: &DataFrame) -> Result<String> {
     let widths: Vec<usize> = cols
         .iter()
         .zip(&cells)
-        .map(|(c, v)| v.iter().map(|x| x.len()).chain([c.name().len()]).max().unwrap_or(0))
+        .map(|(c, v)| {
+            v.iter()
+                .map(|x| x.len())
+                .chain([c.name().len()])
+                .max()
+                .unwrap_or(0)
+        })
         .collect();
     let mut s = String::new();
-    let left: Vec<bool> = cols.iter().map(|c| c.dtype() == &DataType::String).collect();
+    let left: Vec<bool> = cols
+        .iter()
+        .map(|c| c.dtype() == &DataType::String)
+        .collect();
     let cell = |text: &str, w: usize, left: bool| {
         if left {
             format!("{text:<w$}  ")

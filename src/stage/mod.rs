@@ -29,7 +29,9 @@ impl Common {
     pub fn new(args: StageArgs) -> Result<Common> {
         if let Some(n) = args.threads {
             // Ignore the error of a second initialisation (tests call stages twice).
-            let _ = rayon::ThreadPoolBuilder::new().num_threads(n).build_global();
+            let _ = rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build_global();
         }
         let recipe = match &args.recipe {
             Some(p) => Recipe::load(p)?,

@@ -2,9 +2,7 @@
 
 use super::{schema_of, str_list, ColumnSpec};
 use anyhow::Result;
-use arrow::array::{
-    ArrayRef, Float32Array, ListBuilder, StringArray, StringBuilder, UInt32Array,
-};
+use arrow::array::{ArrayRef, Float32Array, ListBuilder, StringArray, StringBuilder, UInt32Array};
 use arrow::datatypes::{DataType, Field};
 use arrow::record_batch::RecordBatch;
 use std::sync::Arc;
@@ -69,8 +67,11 @@ pub fn batch(rows: &[ClipRow]) -> Result<RecordBatch> {
     fn strs(rows: &[ClipRow], f: impl Fn(&ClipRow) -> &str) -> ArrayRef {
         Arc::new(StringArray::from_iter_values(rows.iter().map(f)))
     }
-    let mut objects = ListBuilder::new(StringBuilder::new())
-        .with_field(Arc::new(Field::new("item", DataType::Utf8, false)));
+    let mut objects = ListBuilder::new(StringBuilder::new()).with_field(Arc::new(Field::new(
+        "item",
+        DataType::Utf8,
+        false,
+    )));
     for r in rows {
         for o in &r.objects {
             objects.values().append_value(o);
@@ -78,16 +79,22 @@ pub fn batch(rows: &[ClipRow]) -> Result<RecordBatch> {
         objects.append(true);
     }
     let arrays: Vec<ArrayRef> = vec![
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.clip_id))),
+        Arc::new(UInt32Array::from_iter_values(
+            rows.iter().map(|r| r.clip_id),
+        )),
         strs(rows, |r| &r.name),
         strs(rows, |r| &r.dataset),
         strs(rows, |r| &r.skill),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.class as u32))),
+        Arc::new(UInt32Array::from_iter_values(
+            rows.iter().map(|r| r.class as u32),
+        )),
         strs(rows, |r| &r.label),
         strs(rows, |r| &r.source),
         strs(rows, |r| &r.sha256),
         Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.frames))),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.valid_frames))),
+        Arc::new(UInt32Array::from_iter_values(
+            rows.iter().map(|r| r.valid_frames),
+        )),
         Arc::new(Float32Array::from_iter_values(rows.iter().map(|r| r.fps))),
         Arc::new(Float32Array::from_iter_values(
             rows.iter().map(|r| r.frames as f32 / r.fps),

@@ -114,7 +114,8 @@ impl ReadTable {
 
 /// Read only the key-value metadata of a Parquet file.
 pub fn read_metadata(path: &Path) -> Result<Vec<(String, String)>> {
-    let file = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let file =
+        std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     let builder = ParquetRecordBatchReaderBuilder::try_new(file)
         .with_context(|| format!("{} is not a Parquet file", path.display()))?;
     Ok(kv(builder.metadata().file_metadata().key_value_metadata()))
@@ -132,7 +133,8 @@ fn kv(list: Option<&Vec<KeyValue>>) -> Vec<(String, String)> {
 
 /// Read a whole Parquet file.
 pub fn read_parquet(path: &Path) -> Result<ReadTable> {
-    let file = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let file =
+        std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     let builder = ParquetRecordBatchReaderBuilder::try_new(file)
         .with_context(|| format!("{} is not a Parquet file", path.display()))?;
     let metadata = kv(builder.metadata().file_metadata().key_value_metadata());

@@ -85,7 +85,9 @@ pub fn type_name(t: &DataType) -> String {
     match t {
         DataType::List(f) => format!("List<{}>", type_name(f.data_type())),
         DataType::LargeList(f) => format!("LargeList<{}>", type_name(f.data_type())),
-        DataType::FixedSizeList(f, n) => format!("FixedSizeList<{}, {n}>", type_name(f.data_type())),
+        DataType::FixedSizeList(f, n) => {
+            format!("FixedSizeList<{}, {n}>", type_name(f.data_type()))
+        }
         other => format!("{other:?}"),
     }
 }

@@ -36,7 +36,11 @@ pub fn ok(args: &[&str]) -> String {
 pub fn fails(args: &[&str]) -> String {
     let o = skillaug(args);
     let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert_eq!(o.status.code(), Some(1), "skillaug {args:?}: expected exit 1, stderr:\n{err}");
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "skillaug {args:?}: expected exit 1, stderr:\n{err}"
+    );
     err
 }
 
