@@ -489,3 +489,29 @@ fn python_with_pyarrow() -> std::path::PathBuf {
     }
     py
 }
+
+#[test]
+fn the_library_reads_back_what_ingest_derived() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    ok(&[
+        "ingest",
+        "--dataset",
+        "parahome",
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
+    let lib = skillaug::table::load_library(&out).unwrap();
+    assert_eq!(lib.clips.len(), 7);
+    assert_eq!(lib.skills().len(), 7);
+    let kc = lib.clips_of("pour_kettlecup")[0];
+    let (f, d, x) = read_clip(&data_root().join(&lib.clips[kc].source));
+    assert_eq!(d, 415);
+    let s = lib.state(kc, f - 1).unwrap();
+    assert_eq!(s.root_pos, x[(f - 1) * d..(f - 1) * d + 3]);
+    assert_eq!(s.obj_pos.len(), 6);
+    assert_eq!(s.obj_pos[3..], x[(f - 1) * d + 408..(f - 1) * d + 411]);
+    assert_eq!(s.joint_rot.len(), 180);
+    assert!(lib.state(kc, f).is_none());
+}

@@ -58,6 +58,30 @@ impl Skeleton {
     pub fn n_joints(self) -> usize {
         self.n_bodies() - 1
     }
+
+    /// The 17 key bodies of the reward and the similarity (body indices, in
+    /// key-body slot order: head, knees, elbows, ankles, then the left and
+    /// right fingertips; reference §2.1/§2.2).
+    pub fn key_bodies(self) -> &'static [usize; 17] {
+        match self {
+            Skeleton::MocapHumanoid => &[
+                14, 2, 6, 17, 36, 3, 7, 21, 24, 27, 30, 33, 40, 43, 46, 49, 52,
+            ],
+            Skeleton::ParaHome => &[
+                6, 58, 54, 32, 9, 59, 55, 36, 40, 44, 48, 52, 13, 17, 21, 25, 29,
+            ],
+        }
+    }
+
+    /// The bodies of the SM reward's body-contact penalty (reference §4.2).
+    pub fn contact_penalty_bodies(self) -> &'static [usize] {
+        match self {
+            Skeleton::MocapHumanoid => {
+                &[0, 1, 2, 5, 6, 9, 10, 11, 12, 13, 14, 15, 16, 17, 34, 35, 36]
+            }
+            Skeleton::ParaHome => &[],
+        }
+    }
 }
 
 impl fmt::Display for Skeleton {
@@ -350,6 +374,37 @@ mod tests {
             assert_eq!(Layout::from_columns(l.columns()), Some(l));
         }
         assert_eq!(Layout::from_columns(336), None);
+    }
+
+    #[test]
+    fn key_bodies_are_head_knees_elbows_ankles_fingertips() {
+        let names = |sk: Skeleton| -> Vec<&str> {
+            sk.key_bodies()
+                .iter()
+                .map(|b| sk.body_names()[*b])
+                .collect()
+        };
+        let bp = names(Skeleton::MocapHumanoid);
+        assert_eq!(
+            bp[..7],
+            ["Head", "L_Knee", "R_Knee", "L_Elbow", "R_Elbow", "L_Ankle", "R_Ankle"]
+        );
+        assert!(bp[7..].iter().all(|n| n.ends_with('3')));
+        let ph = names(Skeleton::ParaHome);
+        assert_eq!(
+            ph[..7],
+            [
+                "jC1Head",
+                "jLeftKnee",
+                "jRightKnee",
+                "jLeftElbow",
+                "jRightElbow",
+                "jLeftAnkle",
+                "jRightAnkle"
+            ]
+        );
+        assert!(ph[7..12].iter().all(|n| n.starts_with("jLeft")));
+        assert!(ph[12..].iter().all(|n| n.starts_with("jRight")));
     }
 
     #[test]

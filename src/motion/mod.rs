@@ -3,7 +3,11 @@
 
 pub mod clip;
 pub mod layout;
+pub mod library;
 pub mod quat;
+pub mod state;
 
 pub use clip::{ClipFrames, DeriveOptions};
 pub use layout::{Layout, Skeleton};
+pub use library::MotionLib;
+pub use state::State;

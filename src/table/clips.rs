@@ -105,3 +105,72 @@ pub fn batch(rows: &[ClipRow]) -> Result<RecordBatch> {
     ];
     Ok(RecordBatch::try_new(schema_of(&columns()), arrays)?)
 }
+
+/// Read `clips.parquet` back.
+pub fn read(path: &std::path::Path) -> Result<Vec<ClipRow>> {
+    use super::read_util::{col, list_strs, strs};
+    use arrow::array::AsArray;
+    use arrow::datatypes::{Float32Type, UInt32Type};
+    let t = super::io::read_parquet(path)?;
+    super::read_util::check_table(&t, path, "clips")?;
+    let mut rows = Vec::new();
+    for b in &t.batches {
+        let u32s = |n: &str| -> Result<Vec<u32>> {
+            Ok(col(b, n, path)?
+                .as_primitive::<UInt32Type>()
+                .values()
+                .to_vec())
+        };
+        let (ids, class, frames, valid) = (
+            u32s("clip_id")?,
+            u32s("class")?,
+            u32s("frames")?,
+            u32s("valid_frames")?,
+        );
+        let fps = col(b, "fps", path)?
+            .as_primitive::<Float32Type>()
+            .values()
+            .to_vec();
+        let (name, dataset, skill, label) = (
+            strs(b, "name", path)?,
+            strs(b, "dataset", path)?,
+            strs(b, "skill", path)?,
+            strs(b, "label", path)?,
+        );
+        let (source, sha, layout, skeleton) = (
+            strs(b, "source", path)?,
+            strs(b, "sha256", path)?,
+            strs(b, "layout", path)?,
+            strs(b, "skeleton", path)?,
+        );
+        let objects = list_strs(b, "objects", path)?;
+        for i in 0..b.num_rows() {
+            rows.push(ClipRow {
+                clip_id: ids[i],
+                name: name[i].clone(),
+                dataset: dataset[i].clone(),
+                skill: skill[i].clone(),
+                class: u16::try_from(class[i]).unwrap_or(u16::MAX),
+                label: label[i].clone(),
+                source: source[i].clone(),
+                sha256: sha[i].clone(),
+                frames: frames[i],
+                valid_frames: valid[i],
+                fps: fps[i],
+                layout: layout[i].clone(),
+                skeleton: skeleton[i].clone(),
+                objects: objects[i].clone(),
+            });
+        }
+    }
+    for (i, r) in rows.iter().enumerate() {
+        if r.clip_id as usize != i {
+            anyhow::bail!(
+                "{}: clip_id {} at row {i}: clip ids must be 0, 1, 2, ...",
+                path.display(),
+                r.clip_id
+            );
+        }
+    }
+    Ok(rows)
+}

@@ -105,3 +105,138 @@ pub fn batch(clips: &[ClipInput<'_>]) -> Result<RecordBatch> {
     arrays.push(bools(contact));
     Ok(RecordBatch::try_new(schema_of(&columns()), arrays)?)
 }
+
+/// Read `frames.parquet` back into one [`ClipFrames`] per clip of `clips`.
+/// Rows must come clip by clip, frames in order (as `ingest` writes them).
+pub fn read(path: &std::path::Path, clips: &[super::clips::ClipRow]) -> Result<Vec<ClipFrames>> {
+    use super::read_util::{check_table, col, f32_row};
+    use crate::motion::Skeleton;
+    use anyhow::{anyhow, bail};
+    use arrow::array::AsArray;
+    use arrow::datatypes::UInt32Type;
+    let t = super::io::read_parquet(path)?;
+    check_table(&t, path, "frames")?;
+    let mut out: Vec<ClipFrames> = clips
+        .iter()
+        .map(|c| {
+            let sk = Skeleton::from_name(&c.skeleton).unwrap_or(Skeleton::MocapHumanoid);
+            ClipFrames {
+                frames: 0,
+                n_joints: sk.n_joints(),
+                n_bodies: sk.n_bodies(),
+                n_objects: c.objects.len(),
+                ..Default::default()
+            }
+        })
+        .collect();
+    const NAMES: [&str; 14] = [
+        "root_pos",
+        "root_rot",
+        "root_rot_expmap",
+        "root_linvel",
+        "root_angvel",
+        "joint_rot",
+        "joint_vel",
+        "body_pos",
+        "body_vel",
+        "obj_pos",
+        "obj_rot",
+        "obj_rot_expmap",
+        "obj_linvel",
+        "obj_angvel",
+    ];
+    for b in &t.batches {
+        let ids = col(b, "clip_id", path)?
+            .as_primitive::<UInt32Type>()
+            .values()
+            .to_vec();
+        let frame = col(b, "frame", path)?
+            .as_primitive::<UInt32Type>()
+            .values()
+            .to_vec();
+        let valid = col(b, "valid", path)?.as_boolean().clone();
+        let contact = col(b, "contact", path)?.as_boolean().clone();
+        let arrays = NAMES
+            .iter()
+            .map(|n| col(b, n, path).cloned())
+            .collect::<Result<Vec<_>>>()?;
+        for r in 0..b.num_rows() {
+            let c = out.get_mut(ids[r] as usize).ok_or_else(|| {
+                anyhow!(
+                    "{}: row {r}: clip_id {} not in clips.parquet",
+                    path.display(),
+                    ids[r]
+                )
+            })?;
+            if frame[r] as usize != c.frames {
+                bail!(
+                    "{}: row {r}: frame {} of clip {} out of order",
+                    path.display(),
+                    frame[r],
+                    ids[r]
+                );
+            }
+            let ok = valid.value(r);
+            let (j, bd, o) = (c.n_joints * 3, c.n_bodies * 3, c.n_objects);
+            let widths = [
+                3,
+                4,
+                3,
+                3,
+                3,
+                j,
+                j,
+                bd,
+                bd,
+                3 * o,
+                4 * o,
+                3 * o,
+                3 * o,
+                3 * o,
+            ];
+            let dests: [&mut Vec<f32>; 14] = [
+                &mut c.root_pos,
+                &mut c.root_rot,
+                &mut c.root_rot_expmap,
+                &mut c.root_linvel,
+                &mut c.root_angvel,
+                &mut c.joint_rot,
+                &mut c.joint_vel,
+                &mut c.body_pos,
+                &mut c.body_vel,
+                &mut c.obj_pos,
+                &mut c.obj_rot,
+                &mut c.obj_rot_expmap,
+                &mut c.obj_linvel,
+                &mut c.obj_angvel,
+            ];
+            for ((dest, a), (w, name)) in
+                dests.into_iter().zip(&arrays).zip(widths.iter().zip(NAMES))
+            {
+                match f32_row(a, r) {
+                    Some(v) if ok && v.len() == *w => dest.extend_from_slice(&v),
+                    None if !ok => dest.extend(std::iter::repeat_n(0.0, *w)),
+                    other => bail!(
+                        "{}: row {r} (clip {}, frame {}): column `{name}` has {} values, expected {}",
+                        path.display(), ids[r], frame[r], other.map_or(0, |v| v.len()), if ok { *w } else { 0 }
+                    ),
+                }
+            }
+            c.valid.push(ok);
+            c.contact.push(ok && contact.value(r));
+            c.frames += 1;
+        }
+    }
+    for (c, row) in out.iter().zip(clips) {
+        if c.frames != row.frames as usize {
+            bail!(
+                "{}: clip {} has {} frames, clips.parquet says {}",
+                path.display(),
+                row.clip_id,
+                c.frames,
+                row.frames
+            );
+        }
+    }
+    Ok(out)
+}

@@ -12,6 +12,7 @@ pub mod clips;
 pub mod columns;
 pub mod frames;
 pub mod io;
+pub mod read_util;
 
 use arrow::datatypes::{DataType, Field, Schema};
 use std::sync::Arc;
@@ -66,6 +67,31 @@ pub fn schema_of(cols: &[ColumnSpec]) -> Arc<Schema> {
             .map(|c| Field::new(c.name, c.dtype.clone(), c.nullable))
             .collect::<Vec<_>>(),
     ))
+}
+
+/// Load the ingested clips of a run folder (`clips.parquet`, `frames.parquet`).
+pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::MotionLib> {
+    use anyhow::Context;
+    let cp = run.join("clips.parquet");
+    if !cp.is_file() {
+        anyhow::bail!(
+            "{} does not exist: run `skillaug ingest --out {}` first",
+            cp.display(),
+            run.display()
+        );
+    }
+    let clips = clips::read(&cp)?;
+    let frames = frames::read(&run.join("frames.parquet"), &clips)
+        .with_context(|| format!("loading the clips of {}", run.display()))?;
+    let skeleton = clips
+        .first()
+        .and_then(|c| crate::motion::Skeleton::from_name(&c.skeleton))
+        .ok_or_else(|| anyhow::anyhow!("{}: no clips, or an unknown skeleton", cp.display()))?;
+    Ok(crate::motion::MotionLib {
+        skeleton,
+        clips,
+        frames,
+    })
 }
 
 /// Names of the tables `skillaug schema` knows.
