@@ -13,6 +13,7 @@ pub mod dataset;
 pub mod motion;
 pub mod progress;
 pub mod pt;
+pub mod reward;
 pub mod stage;
 pub mod table;
 

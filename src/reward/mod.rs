@@ -1,0 +1,490 @@
+//! Rewards and state similarity (paper Appendix B.3-B.4; reference §4, §6.1).
+//!
+//! * SM multiplicative reward, Eqs. 12-17: r = r_b r_o r_rel r_cg, every term
+//!   exp(-lambda * MSE); weights per dataset from Table 8 ([`Weights::sm`]).
+//! * DM additive reward, Eq. 18: r = r_p + r_r + r_rv + r_op, Table 9
+//!   ([`Weights::dm`]).
+//! * Similarity S_k(s_A, s_B) = r_b r_o r_rel, Eq. 19, after aligning s_B's
+//!   root xy (and, by default, its heading) to s_A's ([`similarity`]).
+//!
+//! What each MSE runs over (the paper names the terms; the reference code
+//! fixes the operands, §4.2): positions = the root position followed by the
+//! 17 key bodies (54 numbers); rotations = the root exp-map followed by every
+//! joint exp-map, compared component by component (159 or 183 numbers); body
+//! velocities = the same 18 points' velocities; joint velocities = the joint
+//! exp-map velocities; object terms over every object's position, quaternion,
+//! linear and angular velocity; relative motion = (key point - object
+//! position) for the 18 points and every object.
+//!
+//! Contact graph (Eq. 17): the paper's three pairs ball-hands, ball-body and
+//! body-hands, with the reference edges taken from the clip's single contact
+//! flag (ball-hands = flag, the other two = 0). The reference code's two
+//! node-level terms (any-body contact penalty, ball contact vs. flag) are the
+//! option [`ContactRule::Reference`]. ParaHome and Locomotion have r_cg = 1.
+//! The reference code's extra smoothness factor (§4.2) is the option
+//! [`RewardOptions::smoothness`], off by default.
+
+use crate::motion::quat;
+use crate::motion::{Skeleton, State};
+use serde::{Deserialize, Serialize};
+
+/// Which table row of weights applies.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DatasetKind {
+    /// BallPlay / BallPlay-M: object terms and contact graph on.
+    BallPlay,
+    /// Locomotion: body terms only.
+    Locomotion,
+    /// ParaHome: object terms on, contact graph off.
+    ParaHome,
+}
+
+impl DatasetKind {
+    /// The kind of a manifest dataset name (`ballplay`, `ballplay-m`, ...).
+    pub fn from_dataset(name: &str, skeleton: Skeleton) -> DatasetKind {
+        match (name, skeleton) {
+            (_, Skeleton::ParaHome) => DatasetKind::ParaHome,
+            ("locomotion", _) => DatasetKind::Locomotion,
+            _ => DatasetKind::BallPlay,
+        }
+    }
+}
+
+/// Reward weights (the lambdas of Eqs. 13-18). A zero weight makes its SM
+/// factor exp(0) = 1; [`dm_reward`] leaves zero-weight terms out of its sum.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Weights {
+    /// Key-point position.
+    pub p: f64,
+    /// Root and joint rotation.
+    pub r: f64,
+    /// Key-point velocity.
+    pub pv: f64,
+    /// Joint velocity.
+    pub rv: f64,
+    /// Object position.
+    pub op: f64,
+    /// Object rotation.
+    pub or: f64,
+    /// Object linear velocity.
+    pub opv: f64,
+    /// Object angular velocity.
+    pub orv: f64,
+    /// Relative motion.
+    pub rel: f64,
+    /// Contact graph: ball-hands, ball-body, body-hands.
+    pub cg: [f64; 3],
+}
+
+impl Weights {
+    /// SM weights, paper Table 8.
+    pub fn sm(kind: DatasetKind) -> Weights {
+        let body = Weights {
+            p: 20.0,
+            r: 20.0,
+            pv: 0.0,
+            rv: 0.0,
+            op: 0.0,
+            or: 0.0,
+            opv: 0.0,
+            orv: 0.0,
+            rel: 0.0,
+            cg: [0.0; 3],
+        };
+        match kind {
+            DatasetKind::BallPlay => Weights {
+                op: 1.0,
+                rel: 20.0,
+                cg: [5.0; 3],
+                ..body
+            },
+            DatasetKind::Locomotion => body,
+            DatasetKind::ParaHome => Weights {
+                op: 1.0,
+                rel: 20.0,
+                ..body
+            },
+        }
+    }
+
+    /// DM weights, paper Table 9 (ParaHome uses the BallPlay row, as the
+    /// reference code's DM ParaHome configs do, §4.4).
+    pub fn dm(kind: DatasetKind) -> Weights {
+        Weights {
+            p: 40.0,
+            r: 2.0,
+            pv: 0.0,
+            rv: 0.1,
+            op: if kind == DatasetKind::Locomotion {
+                0.0
+            } else {
+                40.0
+            },
+            or: 0.0,
+            opv: 0.0,
+            orv: 0.0,
+            rel: 0.0,
+            cg: [0.0; 3],
+        }
+    }
+}
+
+/// How the contact-graph term is computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ContactRule {
+    /// Paper Eq. 17: three pairs (ball-hands, ball-body, body-hands).
+    #[default]
+    Paper,
+    /// Reference code §4.2: body-contact penalty (weight cg[2]) and ball contact
+    /// vs. the flag (weight cg[0]).
+    Reference,
+}
+
+/// Contacts measured in the simulation (or given for a reference frame).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Contacts {
+    /// Ball (object) touches a hand.
+    pub ball_hands: bool,
+    /// Ball touches the rest of the body.
+    pub ball_body: bool,
+    /// Hands touch the rest of the body.
+    pub body_hands: bool,
+    /// Any of the reference code's 17 penalty bodies has a contact (ground included).
+    pub penalty_bodies: bool,
+}
+
+impl Contacts {
+    /// The contact edges implied by a reference frame's single flag.
+    pub fn of_reference(s: &State) -> Contacts {
+        Contacts {
+            ball_hands: s.contact,
+            ..Contacts::default()
+        }
+    }
+}
+
+/// Options of the SM reward.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RewardOptions {
+    /// Contact-graph rule.
+    pub contacts: ContactRule,
+    /// Multiply by the reference code's smoothness factor (needs the previous
+    /// simulated joint velocities).
+    pub smoothness: bool,
+}
+
+/// Each factor of the SM reward and their product.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SmTerms {
+    /// r_p r_r r_pv r_rv (and the smoothness factor when enabled).
+    pub body: f64,
+    /// r_op r_or r_opv r_orv.
+    pub object: f64,
+    /// r_rel.
+    pub rel: f64,
+    /// r_cg.
+    pub cg: f64,
+    /// The reward: body * object * rel * cg.
+    pub total: f64,
+}
+
+/// Mean of squared differences; 0 for empty inputs.
+fn mse(a: impl IntoIterator<Item = f64>, b: impl IntoIterator<Item = f64>) -> f64 {
+    let (mut s, mut n) = (0.0, 0usize);
+    for (x, y) in a.into_iter().zip(b) {
+        s += (x - y) * (x - y);
+        n += 1;
+    }
+    if n == 0 {
+        0.0
+    } else {
+        s / n as f64
+    }
+}
+
+fn f(v: &[f32]) -> impl Iterator<Item = f64> + '_ {
+    v.iter().map(|x| *x as f64)
+}
+
+/// Root position followed by the 17 key-body positions (54 numbers).
+pub fn key_points(s: &State, sk: Skeleton) -> Vec<f64> {
+    let mut v: Vec<f64> = f(&s.root_pos).collect();
+    for b in sk.key_bodies() {
+        v.extend(f(&s.body_pos[3 * b..3 * b + 3]));
+    }
+    v
+}
+
+/// Root linear velocity followed by the 17 key-body velocities.
+fn key_velocities(s: &State, sk: Skeleton) -> Vec<f64> {
+    let mut v: Vec<f64> = f(&s.root_linvel).collect();
+    for b in sk.key_bodies() {
+        v.extend(f(&s.body_vel[3 * b..3 * b + 3]));
+    }
+    v
+}
+
+/// Key points relative to each object: (k_i - o) for every object o.
+fn relative(s: &State, sk: Skeleton) -> Vec<f64> {
+    let kp = key_points(s, sk);
+    let mut v = Vec::with_capacity(kp.len() * s.obj_pos.len() / 3);
+    for o in s.obj_pos.chunks_exact(3) {
+        for k in kp.chunks_exact(3) {
+            v.extend((0..3).map(|c| k[c] - o[c] as f64));
+        }
+    }
+    v
+}
+
+fn rotations(s: &State) -> impl Iterator<Item = f64> + '_ {
+    f(&s.root_rot_expmap).chain(f(&s.joint_rot))
+}
+
+/// Object quaternions with each sign chosen to agree with `like` (q and -q
+/// are the same rotation).
+fn obj_quats_like(s: &State, like: &State) -> Vec<f64> {
+    let mut v = Vec::with_capacity(s.obj_rot.len());
+    for (q, r) in s.obj_rot.chunks_exact(4).zip(like.obj_rot.chunks_exact(4)) {
+        let d: f32 = q.iter().zip(r).map(|(a, b)| a * b).sum();
+        let sgn = if d < 0.0 { -1.0 } else { 1.0 };
+        v.extend(q.iter().map(|x| sgn * *x as f64));
+    }
+    v
+}
+
+/// The per-term errors (MSEs) between a simulated and a reference state.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Errors {
+    /// Key-point positions.
+    pub p: f64,
+    /// Root and joint rotations.
+    pub r: f64,
+    /// Key-point velocities.
+    pub pv: f64,
+    /// Joint velocities.
+    pub rv: f64,
+    /// Object positions.
+    pub op: f64,
+    /// Object quaternions.
+    pub or: f64,
+    /// Object linear velocities.
+    pub opv: f64,
+    /// Object angular velocities.
+    pub orv: f64,
+    /// Relative motion.
+    pub rel: f64,
+}
+
+/// Errors of `sim` against `reference`.
+pub fn errors(sim: &State, reference: &State, sk: Skeleton) -> Errors {
+    Errors {
+        p: mse(key_points(sim, sk), key_points(reference, sk)),
+        r: mse(rotations(sim), rotations(reference)),
+        pv: mse(key_velocities(sim, sk), key_velocities(reference, sk)),
+        rv: mse(f(&sim.joint_vel), f(&reference.joint_vel)),
+        op: mse(f(&sim.obj_pos), f(&reference.obj_pos)),
+        or: mse(obj_quats_like(sim, reference), f(&reference.obj_rot)),
+        opv: mse(f(&sim.obj_linvel), f(&reference.obj_linvel)),
+        orv: mse(f(&sim.obj_angvel), f(&reference.obj_angvel)),
+        rel: mse(relative(sim, sk), relative(reference, sk)),
+    }
+}
+
+fn body_factor(e: &Errors, w: &Weights) -> f64 {
+    (-w.p * e.p - w.r * e.r - w.pv * e.pv - w.rv * e.rv).exp()
+}
+
+fn object_factor(e: &Errors, w: &Weights) -> f64 {
+    (-w.op * e.op - w.or * e.or - w.opv * e.opv - w.orv * e.orv).exp()
+}
+
+/// The reference code's hidden smoothness factor (§4.2):
+/// exp(-0.1 mean((qd - qd_prev)^2 / (1e12 (qd_ref^2 + 1e-12)))).
+pub fn smoothness(joint_vel: &[f32], prev_joint_vel: &[f32], ref_joint_vel: &[f32]) -> f64 {
+    let n = joint_vel.len().max(1) as f64;
+    let s: f64 = joint_vel
+        .iter()
+        .zip(prev_joint_vel)
+        .zip(ref_joint_vel)
+        .map(|((v, p), r)| {
+            let d = (*v - *p) as f64;
+            d * d / (1e12 * ((*r as f64).powi(2) + 1e-12))
+        })
+        .sum();
+    (-0.1 * s / n).exp()
+}
+
+/// SM reward of `sim` against `reference` (Eqs. 12-17). `prev_joint_vel` is
+/// used only with the smoothness option.
+pub fn sm_reward(
+    sim: &State,
+    reference: &State,
+    sim_contacts: &Contacts,
+    sk: Skeleton,
+    w: &Weights,
+    opts: &RewardOptions,
+    prev_joint_vel: Option<&[f32]>,
+) -> SmTerms {
+    let e = errors(sim, reference, sk);
+    let mut body = body_factor(&e, w);
+    if opts.smoothness {
+        if let Some(prev) = prev_joint_vel {
+            body *= smoothness(&sim.joint_vel, prev, &reference.joint_vel);
+        }
+    }
+    let object = object_factor(&e, w);
+    let rel = (-w.rel * e.rel).exp();
+    let r = Contacts::of_reference(reference);
+    let b = |x: bool| -> f64 {
+        if x {
+            1.0
+        } else {
+            0.0
+        }
+    };
+    let cg_err = match opts.contacts {
+        ContactRule::Paper => {
+            w.cg[0] * (b(sim_contacts.ball_hands) - b(r.ball_hands)).abs()
+                + w.cg[1] * (b(sim_contacts.ball_body) - b(r.ball_body)).abs()
+                + w.cg[2] * (b(sim_contacts.body_hands) - b(r.body_hands)).abs()
+        }
+        ContactRule::Reference => {
+            let ball = sim_contacts.ball_hands || sim_contacts.ball_body;
+            w.cg[2] * b(sim_contacts.penalty_bodies)
+                + w.cg[0] * (b(ball) - b(reference.contact)).abs()
+        }
+    };
+    let cg = (-cg_err).exp();
+    SmTerms {
+        body,
+        object,
+        rel,
+        cg,
+        total: body * object * rel * cg,
+    }
+}
+
+/// DM additive reward (Eq. 18): r_p + r_r + r_rv + r_op, each exp(-lambda
+/// MSE); a term whose weight is zero is left out (Locomotion has no r_op), so
+/// the range is [0, number of weighted terms].
+pub fn dm_reward(sim: &State, reference: &State, sk: Skeleton, w: &Weights) -> f64 {
+    let e = errors(sim, reference, sk);
+    [(w.p, e.p), (w.r, e.r), (w.rv, e.rv), (w.op, e.op)]
+        .iter()
+        .filter(|(wt, _)| *wt > 0.0)
+        .map(|(wt, err)| (-wt * err).exp())
+        .sum()
+}
+
+/// How a state is moved onto another before comparing (reference §6.1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Align {
+    /// Move the root's x, y onto the target's (paper B.4).
+    pub xy: bool,
+    /// Also turn about z so the headings agree (reference code; on by default).
+    pub yaw: bool,
+}
+
+impl Default for Align {
+    fn default() -> Self {
+        Align {
+            xy: true,
+            yaw: true,
+        }
+    }
+}
+
+/// Heading of a root quaternion: atan2 of the rotated x-axis (reference §0).
+pub fn heading(q: [f32; 4]) -> f64 {
+    let q = q.map(|v| v as f64);
+    let x = quat::rotate(q, [1.0, 0.0, 0.0]);
+    x[1].atan2(x[0])
+}
+
+fn wrap(a: f64) -> f64 {
+    let tau = 2.0 * std::f64::consts::PI;
+    let mut a = (a + std::f64::consts::PI) % tau;
+    if a < 0.0 {
+        a += tau;
+    }
+    a - std::f64::consts::PI
+}
+
+/// The horizontal move that [`align_to`] applies: (yaw angle about z, rad;
+/// the pivot = `s`'s root xy; the new root xy).
+pub fn alignment(target: &State, s: &State, a: Align) -> (f64, [f64; 2], [f64; 2]) {
+    let yaw = if a.yaw {
+        wrap(heading(target.root_rot) - heading(s.root_rot))
+    } else {
+        0.0
+    };
+    let pivot = [s.root_pos[0] as f64, s.root_pos[1] as f64];
+    let to = if a.xy {
+        [target.root_pos[0] as f64, target.root_pos[1] as f64]
+    } else {
+        pivot
+    };
+    (yaw, pivot, to)
+}
+
+/// `s` moved rigidly about the vertical so that its root's x, y (and heading)
+/// match `target`'s; heights and joint rotations are unchanged. Root and
+/// object angular velocities are left as they are (the ingested root rate is
+/// a body-frame rate, invariant under the turn).
+pub fn align_to(target: &State, s: &State, a: Align) -> State {
+    let (yaw, pivot, to) = alignment(target, s, a);
+    apply_alignment(s, yaw, pivot, to)
+}
+
+/// Apply a turn of `yaw` about the vertical through `pivot`, then move the
+/// pivot to `to`.
+pub fn apply_alignment(s: &State, yaw: f64, pivot: [f64; 2], to: [f64; 2]) -> State {
+    let (sn, cs) = yaw.sin_cos();
+    let rot = |x: f64, y: f64| (cs * x - sn * y, sn * x + cs * y);
+    let point = |p: &mut [f32]| {
+        let (x, y) = rot(p[0] as f64 - pivot[0], p[1] as f64 - pivot[1]);
+        p[0] = (x + to[0]) as f32;
+        p[1] = (y + to[1]) as f32;
+    };
+    let vector = |v: &mut [f32]| {
+        let (x, y) = rot(v[0] as f64, v[1] as f64);
+        v[0] = x as f32;
+        v[1] = y as f32;
+    };
+    let qz = quat::from_expmap([0.0, 0.0, yaw]);
+    let turn = |q: &mut [f32]| {
+        let r = quat::mul(qz, [q[0] as f64, q[1] as f64, q[2] as f64, q[3] as f64]);
+        for c in 0..4 {
+            q[c] = r[c] as f32;
+        }
+    };
+    let mut o = s.clone();
+    point(&mut o.root_pos);
+    vector(&mut o.root_linvel);
+    if yaw != 0.0 {
+        turn(&mut o.root_rot);
+        let q = o.root_rot.map(|v| v as f64);
+        o.root_rot_expmap = quat::to_expmap(q).map(|v| v as f32);
+        o.obj_rot.chunks_exact_mut(4).for_each(turn);
+    }
+    o.body_pos.chunks_exact_mut(3).for_each(point);
+    o.body_vel.chunks_exact_mut(3).for_each(vector);
+    o.obj_pos.chunks_exact_mut(3).for_each(point);
+    o.obj_linvel.chunks_exact_mut(3).for_each(vector);
+    o
+}
+
+/// Kinematic similarity S_k(s_A, s_B) = r_b r_o r_rel (Eq. 19) with `b`
+/// aligned onto `a` first; contacts are not compared.
+pub fn similarity(a: &State, b: &State, sk: Skeleton, w: &Weights, align: Align) -> f64 {
+    let b = align_to(a, b, align);
+    let e = errors(&b, a, sk);
+    body_factor(&e, w) * object_factor(&e, w) * (-w.rel * e.rel).exp()
+}
+
+#[cfg(test)]
+mod tests;
