@@ -17,6 +17,10 @@ pub struct Cli {
 pub enum Command {
     /// Read motion clips (.pt) into clips.parquet and frames.parquet
     Ingest(IngestArgs),
+    /// Build the Stitched Trajectory Graph between skills (stg_edges.parquet)
+    BuildStg(BuildStgArgs),
+    /// Sample State Transition Field trajectories with ATS weights (stf_samples.parquet)
+    SampleStf(SampleStfArgs),
     /// Summarise a skillaug Parquet file: rows, clips, skills, frames, value ranges
     Inspect(InspectArgs),
     /// Print a table's schema, one field per line
@@ -93,4 +97,23 @@ pub struct BenchArgs {
     /// Folder holding the releases.
     #[arg(long, value_name = "DIR", env = "SKILLAUG_DATA")]
     pub data_root: Option<PathBuf>,
+}
+
+/// `skillaug build-stg`.
+#[derive(Debug, Args)]
+pub struct BuildStgArgs {
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub common: StageArgs,
+    /// The reference code's direction: for each frame of a skill, the best state of each other skill.
+    #[arg(long)]
+    pub per_target: bool,
+}
+
+/// `skillaug sample-stf`.
+#[derive(Debug, Args)]
+pub struct SampleStfArgs {
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub common: StageArgs,
 }

@@ -7,6 +7,7 @@
 //! thin file per subcommand.
 #![warn(missing_docs)]
 
+pub mod augment;
 pub mod cli;
 pub mod config;
 pub mod dataset;
@@ -24,6 +25,10 @@ use cli::{Cli, Command};
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Ingest(a) => stage::ingest::run(&stage::Common::new(a.common)?, a.skip_bad),
+        Command::BuildStg(a) => {
+            stage::build_stg::run(&stage::Common::new(a.common)?, a.per_target)
+        }
+        Command::SampleStf(a) => stage::sample_stf::run(&stage::Common::new(a.common)?),
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => stage::schema::run(&a.name),
         Command::Bench(a) => stage::bench::run(&a.name, a.repeat, a.data_root),

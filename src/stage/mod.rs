@@ -2,8 +2,10 @@
 //! outputs, print a summary.
 
 pub mod bench;
+pub mod build_stg;
 pub mod ingest;
 pub mod inspect;
+pub mod sample_stf;
 pub mod schema;
 
 use crate::cli::StageArgs;
@@ -43,6 +45,12 @@ impl Common {
             .map(|s| s.parse())
             .collect::<Result<Vec<SetArg>>>()?;
         Ok(Common { args, recipe, sets })
+    }
+
+    /// The run folder a later stage reads its inputs from: `--from DIR` if
+    /// given, else `--out`.
+    pub fn input_dir(&self) -> &Path {
+        self.args.from.as_deref().unwrap_or(&self.args.out)
     }
 
     /// The resolved settings of `stage`.

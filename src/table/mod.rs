@@ -13,6 +13,7 @@ pub mod columns;
 pub mod frames;
 pub mod io;
 pub mod read_util;
+pub mod stg;
 
 use arrow::datatypes::{DataType, Field, Schema};
 use std::sync::Arc;
@@ -55,6 +56,11 @@ pub fn f32_fixed(n: i32) -> DataType {
     DataType::FixedSizeList(Arc::new(Field::new("item", DataType::Float32, false)), n)
 }
 
+/// `List<UInt32>` with non-null items.
+pub fn u32_list() -> DataType {
+    DataType::List(Arc::new(Field::new("item", DataType::UInt32, false)))
+}
+
 /// `List<Utf8>` with non-null items.
 pub fn str_list() -> DataType {
     DataType::List(Arc::new(Field::new("item", DataType::Utf8, false)))
@@ -95,13 +101,15 @@ pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::Moti
 }
 
 /// Names of the tables `skillaug schema` knows.
-pub const TABLES: &[&str] = &["clips", "frames"];
+pub const TABLES: &[&str] = &["clips", "frames", "stg_edges", "stg_summary"];
 
 /// The columns of table `name`.
 pub fn columns_of(name: &str) -> Option<Vec<ColumnSpec>> {
     match name {
         "clips" => Some(clips::columns()),
         "frames" => Some(frames::columns()),
+        "stg_edges" => Some(stg::columns()),
+        "stg_summary" => Some(stg::summary_columns()),
         _ => None,
     }
 }

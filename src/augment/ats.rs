@@ -1,0 +1,1 @@
+//! Adaptive Trajectory Sampling (being written).

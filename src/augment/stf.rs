@@ -1,0 +1,1 @@
+//! State Transition Field sampling (being written).
