@@ -8,7 +8,7 @@ use std::path::Path;
 #[test]
 fn help_lists_every_subcommand_with_one_line() {
     let out = ok(&["--help"]);
-    for cmd in ["ingest", "inspect", "schema"] {
+    for cmd in ["ingest", "build-stg", "sample-stf", "inspect", "schema", "bench"] {
         let line = out
             .lines()
             .find(|l| l.trim_start().starts_with(cmd))
@@ -33,7 +33,7 @@ fn help_lists_every_subcommand_with_one_line() {
 
 #[test]
 fn schema_prints_the_golden_files() {
-    for name in ["clips", "frames"] {
+    for name in skillaug::table::TABLES {
         let want = std::fs::read_to_string(
             Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("schemas/{name}.txt")),
         )
@@ -127,6 +127,8 @@ fn shipped_recipes_resolve() {
         if p.extension().is_some_and(|x| x == "toml") {
             let r = skillaug::config::Recipe::load(&p).unwrap();
             skillaug::config::resolve::<skillaug::stage::ingest::IngestConfig>(&r, "ingest", &[])
+                .unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
+            skillaug::config::resolve::<skillaug::stage::build_stg::StgConfig>(&r, "build-stg", &[])
                 .unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
             n += 1;
         }

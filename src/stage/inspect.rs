@@ -55,7 +55,11 @@ pub fn summary(path: &Path) -> Result<String> {
         .collect();
     let has = |c: &str| names.iter().any(|n| n == c);
     let mut lf = df.clone().lazy();
-    let mut skill_ok = has("skill");
+    // Tables keyed by a target skill (stg_edges, stf_samples) group by it.
+    if !has("skill") && has("target_skill") {
+        lf = lf.with_column(col("target_skill").alias("skill"));
+    }
+    let mut skill_ok = has("skill") || has("target_skill");
     if !skill_ok && has("clip_id") {
         let clips = path.with_file_name("clips.parquet");
         if clips.is_file() && clips != path {
@@ -117,7 +121,7 @@ fn ranges(df: &DataFrame) -> Result<String> {
             DataType::Boolean => format!("{} true", flat.bool()?.sum().unwrap_or(0)),
             DataType::String => format!("{} distinct", flat.n_unique()?),
             d if d.is_primitive_numeric() => match (flat.min::<f64>()?, flat.max::<f64>()?) {
-                (Some(lo), Some(hi)) => format!("{lo:.6} .. {hi:.6}"),
+                (Some(lo), Some(hi)) => format!("{} .. {}", num(lo), num(hi)),
                 _ => "empty".into(),
             },
             _ => String::new(),
@@ -186,4 +190,13 @@ fn render(df: &DataFrame) -> Result<String> {
         s += "\n";
     }
     Ok(s)
+}
+
+/// Six decimals, or scientific notation for magnitudes below 1e-3.
+fn num(v: f64) -> String {
+    if v != 0.0 && v.abs() < 1e-3 {
+        format!("{v:.3e}")
+    } else {
+        format!("{v:.6}")
+    }
 }
