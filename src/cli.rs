@@ -21,6 +21,8 @@ pub enum Command {
     BuildStg(BuildStgArgs),
     /// Sample State Transition Field trajectories with ATS weights (stf_samples.parquet)
     SampleStf(SampleStfArgs),
+    /// Pre-train the history encoder by behaviour cloning (he.safetensors)
+    PretrainHe(PretrainHeArgs),
     /// Summarise a skillaug Parquet file: rows, clips, skills, frames, value ranges
     Inspect(InspectArgs),
     /// Print a table's schema, one field per line
@@ -116,4 +118,15 @@ pub struct SampleStfArgs {
     #[command(flatten)]
     #[allow(missing_docs)]
     pub common: StageArgs,
+}
+
+/// `skillaug pretrain-he`.
+#[derive(Debug, Args)]
+pub struct PretrainHeArgs {
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub common: StageArgs,
+    /// Compute device: cpu (default), or cuda / cuda:N with the `cuda` feature.
+    #[arg(long)]
+    pub device: Option<String>,
 }

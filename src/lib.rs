@@ -12,6 +12,7 @@ pub mod cli;
 pub mod config;
 pub mod dataset;
 pub mod motion;
+pub mod nn;
 pub mod progress;
 pub mod pt;
 pub mod reward;
@@ -25,10 +26,11 @@ use cli::{Cli, Command};
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Ingest(a) => stage::ingest::run(&stage::Common::new(a.common)?, a.skip_bad),
-        Command::BuildStg(a) => {
-            stage::build_stg::run(&stage::Common::new(a.common)?, a.per_target)
-        }
+        Command::BuildStg(a) => stage::build_stg::run(&stage::Common::new(a.common)?, a.per_target),
         Command::SampleStf(a) => stage::sample_stf::run(&stage::Common::new(a.common)?),
+        Command::PretrainHe(a) => {
+            stage::pretrain_he::run(&stage::Common::new(a.common)?, a.device.as_deref())
+        }
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => stage::schema::run(&a.name),
         Command::Bench(a) => stage::bench::run(&a.name, a.repeat, a.data_root),

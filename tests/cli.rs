@@ -8,7 +8,14 @@ use std::path::Path;
 #[test]
 fn help_lists_every_subcommand_with_one_line() {
     let out = ok(&["--help"]);
-    for cmd in ["ingest", "build-stg", "sample-stf", "inspect", "schema", "bench"] {
+    for cmd in [
+        "ingest",
+        "build-stg",
+        "sample-stf",
+        "inspect",
+        "schema",
+        "bench",
+    ] {
         let line = out
             .lines()
             .find(|l| l.trim_start().starts_with(cmd))
@@ -128,8 +135,12 @@ fn shipped_recipes_resolve() {
             let r = skillaug::config::Recipe::load(&p).unwrap();
             skillaug::config::resolve::<skillaug::stage::ingest::IngestConfig>(&r, "ingest", &[])
                 .unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
-            skillaug::config::resolve::<skillaug::stage::build_stg::StgConfig>(&r, "build-stg", &[])
-                .unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
+            skillaug::config::resolve::<skillaug::stage::build_stg::StgConfig>(
+                &r,
+                "build-stg",
+                &[],
+            )
+            .unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
             n += 1;
         }
     }

@@ -10,7 +10,14 @@ use std::path::Path;
 
 fn ingest(dir: &Path, dataset: &str) -> String {
     let out = dir.join("run");
-    ok(&["ingest", "--dataset", dataset, "--out", out.to_str().unwrap(), "-q"]);
+    ok(&[
+        "ingest",
+        "--dataset",
+        dataset,
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
     out.to_str().unwrap().to_string()
 }
 
@@ -29,7 +36,11 @@ fn paper_direction_edges_are_argmax_connections_with_eq20_counts() {
     assert_eq!(summary.rows(), 5);
     let total: usize = lib.frames.iter().map(|c| c.frames).sum();
     for skill in lib.skills() {
-        let own: usize = lib.clips_of(&skill).iter().map(|c| lib.frames[*c].frames).sum();
+        let own: usize = lib
+            .clips_of(&skill)
+            .iter()
+            .map(|c| lib.frames[*c].frames)
+            .sum();
         let kept = edges.iter().filter(|e| e.target_skill == skill).count();
         assert!(kept <= total - own && kept > 0, "{skill}: {kept}");
     }
@@ -39,15 +50,35 @@ fn paper_direction_edges_are_argmax_connections_with_eq20_counts() {
         let f = lib.frames[e.dst_clip as usize].frames as u32;
         assert!(e.dst_frame >= 2 && e.dst_frame < f - 1, "{e:?}");
         assert!(e.beta > 1e-10 && e.beta <= 1.0);
-        assert_eq!(Some(e.n_masked), n_masked(e.beta, 1e-10, 10, MaskRule::Paper));
+        assert_eq!(
+            Some(e.n_masked),
+            n_masked(e.beta, 1e-10, 10, MaskRule::Paper)
+        );
         // beta is S_k of the aligned start and the target frame...
         let start = e.aligned_start(&lib).unwrap();
-        let target = lib.state(e.dst_clip as usize, e.dst_frame as usize).unwrap();
-        let direct = reward::similarity(&target, &start, sk, &w, Align { xy: false, yaw: false });
-        assert!((direct - e.beta).abs() <= 1e-4 * e.beta.max(1e-6), "{k}: {direct} vs {}", e.beta);
+        let target = lib
+            .state(e.dst_clip as usize, e.dst_frame as usize)
+            .unwrap();
+        let direct = reward::similarity(
+            &target,
+            &start,
+            sk,
+            &w,
+            Align {
+                xy: false,
+                yaw: false,
+            },
+        );
+        assert!(
+            (direct - e.beta).abs() <= 1e-4 * e.beta.max(1e-6),
+            "{k}: {direct} vs {}",
+            e.beta
+        );
         // ...and the best over every candidate frame of the target skill (checked on a sample).
         if k % 97 == 0 {
-            let src = lib.state(e.src_clip as usize, e.src_frame as usize).unwrap();
+            let src = lib
+                .state(e.src_clip as usize, e.src_frame as usize)
+                .unwrap();
             let mut best = 0.0f64;
             for c in lib.clips_of(&e.target_skill) {
                 for fr in 2..lib.frames[c].frames - 1 {
@@ -55,7 +86,11 @@ fn paper_direction_edges_are_argmax_connections_with_eq20_counts() {
                     best = best.max(reward::similarity(&t, &src, sk, &w, Align::default()));
                 }
             }
-            assert!((best - e.beta).abs() <= 1e-6 * best.max(1e-9), "{k}: best {best} vs {}", e.beta);
+            assert!(
+                (best - e.beta).abs() <= 1e-6 * best.max(1e-9),
+                "{k}: best {best} vs {}",
+                e.beta
+            );
         }
     }
 }
@@ -64,19 +99,33 @@ fn paper_direction_edges_are_argmax_connections_with_eq20_counts() {
 fn per_target_mode_gives_each_frame_one_edge_per_other_skill() {
     let dir = tempfile::tempdir().unwrap();
     let out = ingest(dir.path(), "ballplay");
-    ok(&["build-stg", "--out", &out, "--per-target", "--set", "build-stg.mask_rule=reference", "-q"]);
+    ok(&[
+        "build-stg",
+        "--out",
+        &out,
+        "--per-target",
+        "--set",
+        "build-stg.mask_rule=reference",
+        "-q",
+    ]);
     let lib = table::load_library(Path::new(&out)).unwrap();
     let edges: Vec<Edge> = table::stg::read(&Path::new(&out).join("stg_edges.parquet")).unwrap();
     // 796 frames x 4 other skills, less any dropped (none at tau = 1e-10 here)
     let total: usize = lib.frames.iter().map(|c| c.frames).sum();
     assert_eq!(edges.len(), total * 4);
     for e in &edges {
-        assert_eq!(Some(e.n_masked), n_masked(e.beta, 1e-10, 10, MaskRule::Reference));
+        assert_eq!(
+            Some(e.n_masked),
+            n_masked(e.beta, 1e-10, 10, MaskRule::Reference)
+        );
         let f = lib.frames[e.src_clip as usize].frames as u32;
         assert!(e.src_frame >= 2 && e.src_frame < f - 1);
     }
     let text = std::fs::read_to_string(Path::new(&out).join("build-stg.resolved.toml")).unwrap();
-    assert!(text.contains("per_target = true") && text.contains("mask_rule = \"reference\""), "{text}");
+    assert!(
+        text.contains("per_target = true") && text.contains("mask_rule = \"reference\""),
+        "{text}"
+    );
 }
 
 #[test]
@@ -90,12 +139,25 @@ fn outputs_are_deterministic_and_parahome_is_refused() {
     assert!(a == b);
 
     let ph = dir.path().join("ph");
-    ok(&["ingest", "--dataset", "parahome", "--out", ph.to_str().unwrap(), "-q"]);
+    ok(&[
+        "ingest",
+        "--dataset",
+        "parahome",
+        "--out",
+        ph.to_str().unwrap(),
+        "-q",
+    ]);
     let err = fails(&["build-stg", "--out", ph.to_str().unwrap()]);
     assert!(err.contains("ParaHome"), "{err}");
-    assert_eq!(entries(&ph), ["clips.parquet", "frames.parquet", "ingest.resolved.toml"]);
+    assert_eq!(
+        entries(&ph),
+        ["clips.parquet", "frames.parquet", "ingest.resolved.toml"]
+    );
 
     let empty = dir.path().join("empty");
     let err = fails(&["build-stg", "--out", empty.to_str().unwrap()]);
-    assert!(err.contains("clips.parquet") && err.contains("skillaug ingest"), "{err}");
+    assert!(
+        err.contains("clips.parquet") && err.contains("skillaug ingest"),
+        "{err}"
+    );
 }

@@ -58,7 +58,11 @@ mod tests {
         ];
         for (beta, paper, reference) in table {
             assert_eq!(n_masked(beta, t, 10, MaskRule::Paper), paper, "beta {beta}");
-            assert_eq!(n_masked(beta, t, 10, MaskRule::Reference), reference, "beta {beta}");
+            assert_eq!(
+                n_masked(beta, t, 10, MaskRule::Reference),
+                reference,
+                "beta {beta}"
+            );
         }
         assert_eq!(n_masked(1e-9, 1e-12, 5, MaskRule::Paper), Some(5));
         assert_eq!(n_masked(f64::NAN, t, 10, MaskRule::Paper), None);

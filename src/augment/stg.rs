@@ -110,7 +110,11 @@ struct Canon {
 }
 
 fn canon(s: &State, sk: Skeleton, align: Align) -> Canon {
-    let yaw = if align.yaw { reward::heading(s.root_rot) } else { 0.0 };
+    let yaw = if align.yaw {
+        reward::heading(s.root_rot)
+    } else {
+        0.0
+    };
     let root_xy = [s.root_pos[0] as f64, s.root_pos[1] as f64];
     let pivot = if align.xy { root_xy } else { [0.0, 0.0] };
     // Express s in its heading frame: turn by -yaw about its root, root at the origin.
@@ -159,16 +163,29 @@ fn sim(t: &Canon, s: &Canon, w: &Weights) -> f64 {
     let e_t = quat::to_expmap(t.root_q);
     let n_rot = 3 + t.joints.len();
     let root_sq: f64 = (0..3).map(|i| (e_s[i] - e_t[i]).powi(2)).sum();
-    let joint_sq: f64 = t.joints.iter().zip(&s.joints).map(|(a, b)| (a - b) * (a - b)).sum();
+    let joint_sq: f64 = t
+        .joints
+        .iter()
+        .zip(&s.joints)
+        .map(|(a, b)| (a - b) * (a - b))
+        .sum();
     let r = (root_sq + joint_sq) / n_rot as f64;
     // object quaternions: sign-agnostic
     let mut oq = 0.0;
     for (a, b) in t.oq.chunks_exact(4).zip(s.oq.chunks_exact(4)) {
         let d: f64 = a.iter().zip(b).map(|(x, y)| x * y).sum();
         let sg = if d < 0.0 { -1.0 } else { 1.0 };
-        oq += a.iter().zip(b).map(|(x, y)| (x - sg * y).powi(2)).sum::<f64>();
+        oq += a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - sg * y).powi(2))
+            .sum::<f64>();
     }
-    let oq = if t.oq.is_empty() { 0.0 } else { oq / t.oq.len() as f64 };
+    let oq = if t.oq.is_empty() {
+        0.0
+    } else {
+        oq / t.oq.len() as f64
+    };
     let exponent = w.p * mse(&t.kp, &s.kp)
         + w.r * r
         + w.pv * mse(&t.kv, &s.kv)
@@ -185,7 +202,9 @@ fn sim(t: &Canon, s: &Canon, w: &Weights) -> f64 {
 /// the last (all valid frames if that leaves none; reference §6.1).
 fn candidates(lib: &MotionLib, clip: usize) -> Vec<usize> {
     let c = &lib.frames[clip];
-    let inner: Vec<usize> = (2..c.frames.saturating_sub(1)).filter(|i| c.valid[*i]).collect();
+    let inner: Vec<usize> = (2..c.frames.saturating_sub(1))
+        .filter(|i| c.valid[*i])
+        .collect();
     if inner.is_empty() {
         (0..c.frames).filter(|i| c.valid[*i]).collect()
     } else {
@@ -199,7 +218,11 @@ pub fn build(lib: &MotionLib, w: &Weights, p: &StgParams) -> (Vec<Edge>, Vec<Ski
     let owned: Vec<Vec<Option<Canon>>> = lib
         .frames
         .par_iter()
-        .map(|c| (0..c.frames).map(|i| c.state(i).map(|s| canon(&s, sk, p.align))).collect())
+        .map(|c| {
+            (0..c.frames)
+                .map(|i| c.state(i).map(|s| canon(&s, sk, p.align)))
+                .collect()
+        })
         .collect();
     let canons = &owned;
     let skills = lib.skills();
@@ -215,21 +238,33 @@ pub fn build(lib: &MotionLib, w: &Weights, p: &StgParams) -> (Vec<Edge>, Vec<Ski
             .collect();
         let mut kept: Vec<Edge> = Vec::new();
         let mut states = 0u32;
-        let best_of = |s: &Canon, cands: &[(usize, usize)], s_is_target: bool| -> (f64, (usize, usize)) {
-            let mut best = (-1.0, cands[0]);
-            for &(c, f) in cands {
-                let other = canons[c][f].as_ref().expect("candidates are valid");
-                let b = if s_is_target { sim(s, other, w) } else { sim(other, s, w) };
-                if b > best.0 {
-                    best = (b, (c, f));
+        let best_of =
+            |s: &Canon, cands: &[(usize, usize)], s_is_target: bool| -> (f64, (usize, usize)) {
+                let mut best = (-1.0, cands[0]);
+                for &(c, f) in cands {
+                    let other = canons[c][f].as_ref().expect("candidates are valid");
+                    let b = if s_is_target {
+                        sim(s, other, w)
+                    } else {
+                        sim(other, s, w)
+                    };
+                    if b > best.0 {
+                        best = (b, (c, f));
+                    }
                 }
-            }
-            best
-        };
+                best
+            };
         let make = |src: (usize, usize), dst: (usize, usize), beta: f64| -> Option<Edge> {
             let n = n_masked(beta, p.tau, p.n_max, p.mask_rule)?;
-            let (s, t) = (canons[src.0][src.1].as_ref()?, canons[dst.0][dst.1].as_ref()?);
-            let yaw = if p.align.yaw { wrap(t.yaw - s.yaw) } else { 0.0 };
+            let (s, t) = (
+                canons[src.0][src.1].as_ref()?,
+                canons[dst.0][dst.1].as_ref()?,
+            );
+            let yaw = if p.align.yaw {
+                wrap(t.yaw - s.yaw)
+            } else {
+                0.0
+            };
             let (dx, dy) = if p.align.xy {
                 (t.root_xy[0] - s.root_xy[0], t.root_xy[1] - s.root_xy[1])
             } else {
@@ -253,7 +288,11 @@ pub fn build(lib: &MotionLib, w: &Weights, p: &StgParams) -> (Vec<Edge>, Vec<Ski
         if !p.per_target {
             let sources: Vec<(usize, usize)> = (0..lib.clips.len())
                 .filter(|c| lib.clips[*c].skill != *a)
-                .flat_map(|c| (0..lib.frames[c].frames).filter(move |f| canons[c][*f].is_some()).map(move |f| (c, f)))
+                .flat_map(|c| {
+                    (0..lib.frames[c].frames)
+                        .filter(move |f| canons[c][*f].is_some())
+                        .map(move |f| (c, f))
+                })
                 .collect();
             states = sources.len() as u32;
             let found: Vec<Option<Edge>> = sources
@@ -274,7 +313,11 @@ pub fn build(lib: &MotionLib, w: &Weights, p: &StgParams) -> (Vec<Edge>, Vec<Ski
                     .collect();
                 let targets: Vec<(usize, usize)> = a_clips
                     .iter()
-                    .flat_map(|&c| (0..lib.frames[c].frames).filter(move |f| canons[c][*f].is_some()).map(move |f| (c, f)))
+                    .flat_map(|&c| {
+                        (0..lib.frames[c].frames)
+                            .filter(move |f| canons[c][*f].is_some())
+                            .map(move |f| (c, f))
+                    })
                     .collect();
                 states += targets.len() as u32;
                 let found: Vec<Option<Edge>> = targets
@@ -313,6 +356,12 @@ fn wrap(a: f64) -> f64 {
 }
 
 #[cfg(test)]
-pub(crate) fn canonical_similarity(t: &State, s: &State, sk: Skeleton, w: &Weights, align: Align) -> f64 {
+pub(crate) fn canonical_similarity(
+    t: &State,
+    s: &State,
+    sk: Skeleton,
+    w: &Weights,
+    align: Align,
+) -> f64 {
     sim(&canon(t, sk, align), &canon(s, sk, align), w)
 }

@@ -226,10 +226,19 @@ fn the_stg_canonical_similarity_equals_the_aligned_one() {
         b.root_rot = quat::from_expmap([0.1, 0.2, -2.5]).map(|v| v as f32);
         b.root_rot_expmap = [0.1, 0.2, -2.5];
         b.root_pos = [-3.0, 4.0, 0.8];
-        for align in [Align::default(), Align { xy: true, yaw: false }] {
+        for align in [
+            Align::default(),
+            Align {
+                xy: true,
+                yaw: false,
+            },
+        ] {
             let want = similarity(&a, &b, SK, &w, align);
             let got = canonical_similarity(&a, &b, SK, &w, align);
-            assert!((want - got).abs() <= 1e-6 * want.max(1e-12), "{want} vs {got}");
+            assert!(
+                (want - got).abs() <= 1e-6 * want.max(1e-12),
+                "{want} vs {got}"
+            );
         }
     }
 }

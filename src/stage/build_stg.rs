@@ -54,7 +54,10 @@ pub fn run(common: &Common, per_target_flag: bool) -> Result<()> {
         );
     }
     if lib.skills().len() < 2 {
-        bail!("build-stg needs clips of at least two skills; {} has one", common.input_dir().display());
+        bail!(
+            "build-stg needs clips of at least two skills; {} has one",
+            common.input_dir().display()
+        );
     }
     let kind = DatasetKind::from_dataset(&lib.clips[0].dataset, lib.skeleton);
     let weights = Weights::sm(kind);
@@ -62,7 +65,10 @@ pub fn run(common: &Common, per_target_flag: bool) -> Result<()> {
         tau: cfg.tau,
         n_max: cfg.n_max,
         mask_rule: cfg.mask_rule,
-        align: Align { xy: true, yaw: cfg.align_yaw },
+        align: Align {
+            xy: true,
+            yaw: cfg.align_yaw,
+        },
         per_target: cfg.per_target,
     };
     let (edges, summary) = stg::build(&lib, &weights, &params);
@@ -72,17 +78,42 @@ pub fn run(common: &Common, per_target_flag: bool) -> Result<()> {
     let meta = |t: &str| -> Vec<(String, String)> {
         vec![
             ("skillaug.table".into(), t.into()),
-            ("skillaug.schema_version".into(), table::SCHEMA_VERSION.to_string()),
+            (
+                "skillaug.schema_version".into(),
+                table::SCHEMA_VERSION.to_string(),
+            ),
             ("skillaug.version".into(), env!("CARGO_PKG_VERSION").into()),
             ("skillaug.dataset".into(), lib.clips[0].dataset.clone()),
-            ("skillaug.direction".into(), if cfg.per_target { "per-target" } else { "paper" }.into()),
-            ("skillaug.weights".into(), serde_json::to_string(&weights).unwrap_or_default()),
-            ("skillaug.config_hash".into(), crate::config::hash_text(&resolved)),
+            (
+                "skillaug.direction".into(),
+                if cfg.per_target {
+                    "per-target"
+                } else {
+                    "paper"
+                }
+                .into(),
+            ),
+            (
+                "skillaug.weights".into(),
+                serde_json::to_string(&weights).unwrap_or_default(),
+            ),
+            (
+                "skillaug.config_hash".into(),
+                crate::config::hash_text(&resolved),
+            ),
         ]
     };
     let mut out = Outputs::new(&common.args.out)?;
-    out.parquet("stg_edges.parquet", &table::stg::batch(&edges)?, &meta("stg_edges"))?;
-    out.parquet("stg_summary.parquet", &table::stg::summary_batch(&summary)?, &meta("stg_summary"))?;
+    out.parquet(
+        "stg_edges.parquet",
+        &table::stg::batch(&edges)?,
+        &meta("stg_edges"),
+    )?;
+    out.parquet(
+        "stg_summary.parquet",
+        &table::stg::summary_batch(&summary)?,
+        &meta("stg_summary"),
+    )?;
     out.text("build-stg.resolved.toml", &resolved)?;
     out.commit()?;
 

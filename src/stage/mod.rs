@@ -5,6 +5,7 @@ pub mod bench;
 pub mod build_stg;
 pub mod ingest;
 pub mod inspect;
+pub mod pretrain_he;
 pub mod sample_stf;
 pub mod schema;
 
@@ -109,6 +110,12 @@ impl Outputs {
     ) -> Result<()> {
         let dest = self.dir.join(name);
         self.staged.as_mut().unwrap().parquet(&dest, batch, meta)
+    }
+
+    /// Stage `<dir>/<name>`, written by `write` to the temporary path it gets.
+    pub fn with_path(&mut self, name: &str, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+        let dest = self.dir.join(name);
+        self.staged.as_mut().unwrap().with_path(&dest, write)
     }
 
     /// Stage `<dir>/<name>` as text.

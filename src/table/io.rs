@@ -69,6 +69,18 @@ impl Staged {
         Ok(())
     }
 
+    /// Stage a file written by `write`, which gets the temporary path.
+    pub fn with_path(
+        &mut self,
+        dest: &Path,
+        write: impl FnOnce(&Path) -> Result<()>,
+    ) -> Result<()> {
+        let tmp = Self::temp_for(dest)?;
+        write(tmp.path())?;
+        self.files.push((tmp, dest.to_path_buf()));
+        Ok(())
+    }
+
     /// Stage a text file.
     pub fn text(&mut self, dest: &Path, text: &str) -> Result<()> {
         let mut tmp = Self::temp_for(dest)?;

@@ -11,8 +11,10 @@
 pub mod clips;
 pub mod columns;
 pub mod frames;
+pub mod he;
 pub mod io;
 pub mod read_util;
+pub mod stf;
 pub mod stg;
 
 use arrow::datatypes::{DataType, Field, Schema};
@@ -101,7 +103,15 @@ pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::Moti
 }
 
 /// Names of the tables `skillaug schema` knows.
-pub const TABLES: &[&str] = &["clips", "frames", "stg_edges", "stg_summary"];
+pub const TABLES: &[&str] = &[
+    "clips",
+    "frames",
+    "stg_edges",
+    "stg_summary",
+    "he_loss",
+    "he_embeddings",
+    "stf_samples",
+];
 
 /// The columns of table `name`.
 pub fn columns_of(name: &str) -> Option<Vec<ColumnSpec>> {
@@ -109,7 +119,10 @@ pub fn columns_of(name: &str) -> Option<Vec<ColumnSpec>> {
         "clips" => Some(clips::columns()),
         "frames" => Some(frames::columns()),
         "stg_edges" => Some(stg::columns()),
+        "he_loss" => Some(he::loss_columns()),
+        "he_embeddings" => Some(he::embedding_columns()),
         "stg_summary" => Some(stg::summary_columns()),
+        "stf_samples" => Some(stf::columns()),
         _ => None,
     }
 }

@@ -17,17 +17,67 @@ use std::sync::Arc;
 pub fn columns() -> Vec<ColumnSpec> {
     use DataType::*;
     vec![
-        ColumnSpec::new("target_skill", Utf8, false, "skill A whose graph the edge belongs to (the skill to be tracked after the switch)"),
-        ColumnSpec::new("target_class", UInt32, false, "class id of A (the condition during the stitched trajectory)"),
-        ColumnSpec::new("src_skill", Utf8, false, "skill of the external start state"),
-        ColumnSpec::new("src_clip", UInt32, false, "clip of the external start state (clips.parquet clip_id)"),
-        ColumnSpec::new("src_frame", UInt32, false, "frame of the external start state"),
+        ColumnSpec::new(
+            "target_skill",
+            Utf8,
+            false,
+            "skill A whose graph the edge belongs to (the skill to be tracked after the switch)",
+        ),
+        ColumnSpec::new(
+            "target_class",
+            UInt32,
+            false,
+            "class id of A (the condition during the stitched trajectory)",
+        ),
+        ColumnSpec::new(
+            "src_skill",
+            Utf8,
+            false,
+            "skill of the external start state",
+        ),
+        ColumnSpec::new(
+            "src_clip",
+            UInt32,
+            false,
+            "clip of the external start state (clips.parquet clip_id)",
+        ),
+        ColumnSpec::new(
+            "src_frame",
+            UInt32,
+            false,
+            "frame of the external start state",
+        ),
         ColumnSpec::new("dst_clip", UInt32, false, "clip of A the start connects to"),
-        ColumnSpec::new("dst_frame", UInt32, false, "frame of A the start connects to (argmax of S_k)"),
-        ColumnSpec::new("beta", Float64, false, "similarity S_k (Eq. 19) of the aligned start and the target frame, > tau"),
-        ColumnSpec::new("n_masked", UInt32, false, "masked states between start and target (Eq. 20)"),
-        ColumnSpec::new("align_yaw", Float32, false, "turn about the vertical through the start's root applied to the start state, rad"),
-        ColumnSpec::new("align_dx", Float32, false, "then this x shift, m (start root x -> target root x)"),
+        ColumnSpec::new(
+            "dst_frame",
+            UInt32,
+            false,
+            "frame of A the start connects to (argmax of S_k)",
+        ),
+        ColumnSpec::new(
+            "beta",
+            Float64,
+            false,
+            "similarity S_k (Eq. 19) of the aligned start and the target frame, > tau",
+        ),
+        ColumnSpec::new(
+            "n_masked",
+            UInt32,
+            false,
+            "masked states between start and target (Eq. 20)",
+        ),
+        ColumnSpec::new(
+            "align_yaw",
+            Float32,
+            false,
+            "turn about the vertical through the start's root applied to the start state, rad",
+        ),
+        ColumnSpec::new(
+            "align_dx",
+            Float32,
+            false,
+            "then this x shift, m (start root x -> target root x)",
+        ),
         ColumnSpec::new("align_dy", Float32, false, "then this y shift, m"),
     ]
 }
@@ -54,9 +104,13 @@ pub fn batch(edges: &[Edge]) -> Result<RecordBatch> {
         Arc::new(Float32Array::from_iter_values(edges.iter().map(f)))
     };
     let arrays: Vec<ArrayRef> = vec![
-        Arc::new(StringArray::from_iter_values(edges.iter().map(|e| e.target_skill.as_str()))),
+        Arc::new(StringArray::from_iter_values(
+            edges.iter().map(|e| e.target_skill.as_str()),
+        )),
         u(&|e| e.target_class),
-        Arc::new(StringArray::from_iter_values(edges.iter().map(|e| e.src_skill.as_str()))),
+        Arc::new(StringArray::from_iter_values(
+            edges.iter().map(|e| e.src_skill.as_str()),
+        )),
         u(&|e| e.src_clip),
         u(&|e| e.src_frame),
         u(&|e| e.dst_clip),
@@ -72,19 +126,28 @@ pub fn batch(edges: &[Edge]) -> Result<RecordBatch> {
 
 /// The record batch of the per-skill summaries.
 pub fn summary_batch(rows: &[SkillSummary]) -> Result<RecordBatch> {
-    let mut hist = ListBuilder::new(UInt32Builder::new())
-        .with_field(Arc::new(Field::new("item", DataType::UInt32, false)));
+    let mut hist = ListBuilder::new(UInt32Builder::new()).with_field(Arc::new(Field::new(
+        "item",
+        DataType::UInt32,
+        false,
+    )));
     for r in rows {
         hist.values().append_slice(&r.n_hist);
         hist.append(true);
     }
     let arrays: Vec<ArrayRef> = vec![
-        Arc::new(StringArray::from_iter_values(rows.iter().map(|r| r.target_skill.as_str()))),
+        Arc::new(StringArray::from_iter_values(
+            rows.iter().map(|r| r.target_skill.as_str()),
+        )),
         Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.states))),
         Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.kept))),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.dropped))),
+        Arc::new(UInt32Array::from_iter_values(
+            rows.iter().map(|r| r.dropped),
+        )),
         Arc::new(hist.finish()),
-        Arc::new(Float64Array::from(rows.iter().map(|r| r.beta_median).collect::<Vec<_>>())),
+        Arc::new(Float64Array::from(
+            rows.iter().map(|r| r.beta_median).collect::<Vec<_>>(),
+        )),
     ];
     Ok(RecordBatch::try_new(schema_of(&summary_columns()), arrays)?)
 }
@@ -96,14 +159,30 @@ pub fn read(path: &std::path::Path) -> Result<Vec<Edge>> {
     let mut out = Vec::new();
     for b in &t.batches {
         let u = |n: &str| -> Result<Vec<u32>> {
-            Ok(col(b, n, path)?.as_primitive::<UInt32Type>().values().to_vec())
+            Ok(col(b, n, path)?
+                .as_primitive::<UInt32Type>()
+                .values()
+                .to_vec())
         };
         let fl = |n: &str| -> Result<Vec<f32>> {
-            Ok(col(b, n, path)?.as_primitive::<Float32Type>().values().to_vec())
+            Ok(col(b, n, path)?
+                .as_primitive::<Float32Type>()
+                .values()
+                .to_vec())
         };
         let (ts, ss) = (strs(b, "target_skill", path)?, strs(b, "src_skill", path)?);
-        let (tc, sc, sf, dc, df, nm) = (u("target_class")?, u("src_clip")?, u("src_frame")?, u("dst_clip")?, u("dst_frame")?, u("n_masked")?);
-        let beta = col(b, "beta", path)?.as_primitive::<Float64Type>().values().to_vec();
+        let (tc, sc, sf, dc, df, nm) = (
+            u("target_class")?,
+            u("src_clip")?,
+            u("src_frame")?,
+            u("dst_clip")?,
+            u("dst_frame")?,
+            u("n_masked")?,
+        );
+        let beta = col(b, "beta", path)?
+            .as_primitive::<Float64Type>()
+            .values()
+            .to_vec();
         let (yaw, dx, dy) = (fl("align_yaw")?, fl("align_dx")?, fl("align_dy")?);
         for i in 0..b.num_rows() {
             out.push(Edge {

@@ -1,0 +1,169 @@
+//! Networks in candle: the only code (with `ppo/`, later) that touches
+//! candle. Layers are built with seeded, PyTorch-style initial weights
+//! (uniform in +-1/sqrt(fan_in), biases too), because candle's own
+//! initialisers draw from an unseeded generator and start far larger
+//! (measured: saturated outputs), and runs must repeat for a seed.
+
+pub mod he;
+
+use anyhow::{bail, Result};
+use candle_core::{Device, Tensor, Var};
+use candle_nn::{Conv1d, Conv1dConfig, Linear, Module};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use std::collections::BTreeMap;
+
+/// The compute device named on the command line (`cpu`, or `cuda` /
+/// `cuda:N` with the `cuda` feature).
+pub fn device(name: &str) -> Result<Device> {
+    match name {
+        "cpu" => Ok(Device::Cpu),
+        n if n == "cuda" || n.starts_with("cuda:") => {
+            if !cfg!(feature = "cuda") {
+                bail!(
+                    "--device {n}: this build has no CUDA support (rebuild with --features cuda)"
+                );
+            }
+            let ordinal = n.strip_prefix("cuda:").map_or(Ok(0), |s| s.parse())?;
+            Ok(Device::new_cuda(ordinal)?)
+        }
+        other => bail!("unknown device `{other}` (cpu, cuda, cuda:N)"),
+    }
+}
+
+/// Named trainable variables, in a stable (sorted) order.
+#[derive(Default)]
+pub struct Params {
+    vars: BTreeMap<String, Var>,
+}
+
+impl Params {
+    /// A new variable `name` of `shape`, uniform in +-bound, drawn from `rng`.
+    fn uniform(
+        &mut self,
+        name: String,
+        shape: &[usize],
+        bound: f64,
+        rng: &mut ChaCha8Rng,
+        dev: &Device,
+    ) -> Result<Tensor> {
+        let n: usize = shape.iter().product();
+        let data: Vec<f32> = (0..n)
+            .map(|_| rng.random_range(-bound..bound) as f32)
+            .collect();
+        let var = Var::from_tensor(&Tensor::from_vec(data, shape, dev)?)?;
+        let t = var.as_tensor().clone();
+        self.vars.insert(name, var);
+        Ok(t)
+    }
+
+    /// A linear layer `prefix.weight` `[out, in]`, `prefix.bias` `[out]`.
+    pub fn linear(
+        &mut self,
+        prefix: &str,
+        inp: usize,
+        out: usize,
+        rng: &mut ChaCha8Rng,
+        dev: &Device,
+    ) -> Result<Linear> {
+        let b = 1.0 / (inp as f64).sqrt();
+        let w = self.uniform(format!("{prefix}.weight"), &[out, inp], b, rng, dev)?;
+        let bias = self.uniform(format!("{prefix}.bias"), &[out], b, rng, dev)?;
+        Ok(Linear::new(w, Some(bias)))
+    }
+
+    /// A 1-D convolution `[out, in, kernel]` with zero padding `pad`.
+    // The layer's sizes, the generator and the device are all needed here;
+    // a parameter struct would only rename them.
+    #[allow(clippy::too_many_arguments)]
+    pub fn conv1d(
+        &mut self,
+        prefix: &str,
+        inp: usize,
+        out: usize,
+        kernel: usize,
+        pad: usize,
+        rng: &mut ChaCha8Rng,
+        dev: &Device,
+    ) -> Result<Conv1d> {
+        let b = 1.0 / ((inp * kernel) as f64).sqrt();
+        let w = self.uniform(format!("{prefix}.weight"), &[out, inp, kernel], b, rng, dev)?;
+        let bias = self.uniform(format!("{prefix}.bias"), &[out], b, rng, dev)?;
+        let cfg = Conv1dConfig {
+            padding: pad,
+            ..Default::default()
+        };
+        Ok(Conv1d::new(w, Some(bias), cfg))
+    }
+
+    /// Every variable, in name order (for the optimiser).
+    pub fn all(&self) -> Vec<Var> {
+        self.vars.values().cloned().collect()
+    }
+
+    /// Variables whose names start with `prefix`, as named tensors.
+    pub fn tensors(&self, prefix: &str) -> Vec<(String, Tensor)> {
+        self.vars
+            .iter()
+            .filter(|(k, _)| k.starts_with(prefix))
+            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
+            .collect()
+    }
+
+    /// Overwrite every variable with the tensor of the same name.
+    pub fn load(&self, named: &std::collections::HashMap<String, Tensor>) -> Result<()> {
+        for (k, v) in &self.vars {
+            match named.get(k) {
+                Some(t) if t.dims() == v.dims() => v.set(t)?,
+                Some(t) => bail!(
+                    "weights `{k}`: shape {:?}, expected {:?}",
+                    t.dims(),
+                    v.dims()
+                ),
+                None => bail!("weights `{k}` missing"),
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A ReLU MLP: linear layers with ReLU between them, none after the last.
+pub struct Mlp {
+    layers: Vec<Linear>,
+}
+
+impl Mlp {
+    /// Layers `prefix.0`, `prefix.1`, ... of sizes `inp -> hidden... -> out`.
+    pub fn new(
+        p: &mut Params,
+        prefix: &str,
+        inp: usize,
+        hidden: &[usize],
+        out: usize,
+        rng: &mut ChaCha8Rng,
+        dev: &Device,
+    ) -> Result<Mlp> {
+        let mut sizes = vec![inp];
+        sizes.extend_from_slice(hidden);
+        sizes.push(out);
+        let layers = sizes
+            .windows(2)
+            .enumerate()
+            .map(|(i, w)| p.linear(&format!("{prefix}.{i}"), w[0], w[1], rng, dev))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Mlp { layers })
+    }
+}
+
+impl Module for Mlp {
+    fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        let mut h = x.clone();
+        for (i, l) in self.layers.iter().enumerate() {
+            h = l.forward(&h)?;
+            if i + 1 < self.layers.len() {
+                h = h.relu()?;
+            }
+        }
+        Ok(h)
+    }
+}

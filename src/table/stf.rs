@@ -1,0 +1,214 @@
+//! `stf_samples.parquet`: trajectories sampled from the State Transition
+//! Field (paper Sections 4.3-4.5, Algorithm 1; algorithm in
+//! [`crate::augment::stf`]), one row per (trajectory, step), so that a user
+//! can inspect and plot what the trainer sees. Also the reader of the
+//! optional ATS rewards table (`clip_id`, `frame`, `mean_reward`).
+
+use super::columns::F32Rows;
+use super::read_util::col;
+use super::{f32_fixed, f32_list, schema_of, ColumnSpec};
+use crate::augment::stf::Trajectory;
+use anyhow::{anyhow, bail, Result};
+use arrow::array::{
+    Array, ArrayRef, AsArray, BooleanArray, Float64Array, StringArray, UInt32Array,
+};
+use arrow::datatypes::{
+    DataType, Float32Type, Float64Type, Int16Type, Int32Type, Int64Type, Int8Type, UInt16Type,
+    UInt32Type, UInt64Type, UInt8Type,
+};
+use arrow::record_batch::RecordBatch;
+use std::path::Path;
+use std::sync::Arc;
+
+/// The documented columns. J = joints, B = bodies, O = objects (as in
+/// frames.parquet). Quaternions are (x, y, z, w). Per-trajectory values repeat
+/// on every row of the trajectory; the start state is filled at step 0 only.
+pub fn columns() -> Vec<ColumnSpec> {
+    use DataType::*;
+    vec![
+        ColumnSpec::new("traj_id", UInt32, false, "trajectory, 0-based in sampling order"),
+        ColumnSpec::new("step", UInt32, false, "0 = the start state (the reset state, no reward); then one row per policy step, at most the horizon"),
+        ColumnSpec::new("masked", Boolean, false, "no reward at this step: an inserted masked state (ref null) or a missing reference frame (ref set)"),
+        ColumnSpec::new("ref_clip", UInt32, true, "clip of the reference frame tracked at this step (clips.parquet clip_id); null at step 0 and for inserted masked states"),
+        ColumnSpec::new("ref_frame", UInt32, true, "frame of the reference frame tracked at this step"),
+        ColumnSpec::new("condition", UInt32, false, "condition: class id of the target skill A"),
+        ColumnSpec::new("target_skill", Utf8, false, "skill A the trajectory tracks"),
+        ColumnSpec::new("start_kind", Utf8, false, "rsi (a frame of A chosen by ATS), stg (an external state through an STG edge), rsi+noise or stg+noise (then drawn from the epsilon-neighbourhood)"),
+        ColumnSpec::new("fallback", Boolean, false, "the sampled start had beta <= tau and was replaced by a plain reference frame of A (start_kind rsi)"),
+        ColumnSpec::new("centroid_clip", UInt32, false, "clip of the centroid state before noise: the ATS frame of A (rsi) or the STG edge's source frame (stg)"),
+        ColumnSpec::new("centroid_frame", UInt32, false, "frame of the centroid state"),
+        ColumnSpec::new("beta", Float64, false, "similarity S_k (Eq. 19) of the start and the reference frame it connects to (Eq. 6 argmax); 1 for an unperturbed reference start"),
+        ColumnSpec::new("n_masked", UInt32, false, "masked states N between start and reference (Eq. 20)"),
+        ColumnSpec::new("root_pos", f32_fixed(3), true, "start state (step 0 only): root world position, m"),
+        ColumnSpec::new("root_rot", f32_fixed(4), true, "start: root world rotation, unit quaternion (x, y, z, w)"),
+        ColumnSpec::new("root_rot_expmap", f32_fixed(3), true, "start: root world rotation, exp-map, rad"),
+        ColumnSpec::new("root_linvel", f32_fixed(3), true, "start: root linear velocity, m/s"),
+        ColumnSpec::new("root_angvel", f32_fixed(3), true, "start: root angular velocity, rad/s (frame as in frames.parquet)"),
+        ColumnSpec::new("joint_rot", f32_list(), true, "start: [J*3] joint exp-maps, rad"),
+        ColumnSpec::new("joint_vel", f32_list(), true, "start: [J*3] joint exp-map velocities, rad/s"),
+        ColumnSpec::new("body_pos", f32_list(), true, "start: [B*3] body world positions, m (moved rigidly with the root under noise; no forward kinematics)"),
+        ColumnSpec::new("body_vel", f32_list(), true, "start: [B*3] body linear velocities, m/s"),
+        ColumnSpec::new("obj_pos", f32_list(), true, "start: [O*3] object positions, m"),
+        ColumnSpec::new("obj_rot", f32_list(), true, "start: [O*4] object rotations, unit quaternions (x, y, z, w)"),
+        ColumnSpec::new("obj_linvel", f32_list(), true, "start: [O*3] object linear velocities, m/s"),
+        ColumnSpec::new("obj_angvel", f32_list(), true, "start: [O*3] object angular velocities, rad/s"),
+    ]
+}
+
+/// The record batch of `trajs` (trajectory ids = positions).
+pub fn batch(trajs: &[Trajectory]) -> Result<RecordBatch> {
+    let n: usize = trajs.iter().map(|t| t.steps.len()).sum();
+    let mut traj_id = Vec::with_capacity(n);
+    let mut step = Vec::with_capacity(n);
+    let mut masked = Vec::with_capacity(n);
+    let mut ref_clip = Vec::with_capacity(n);
+    let mut ref_frame = Vec::with_capacity(n);
+    let mut condition = Vec::with_capacity(n);
+    let mut skill = Vec::with_capacity(n);
+    let mut kind = Vec::with_capacity(n);
+    let mut fallback = Vec::with_capacity(n);
+    let mut cc = Vec::with_capacity(n);
+    let mut cf = Vec::with_capacity(n);
+    let mut beta = Vec::with_capacity(n);
+    let mut nm = Vec::with_capacity(n);
+    let mut state: Vec<F32Rows> = vec![
+        F32Rows::fixed(3),
+        F32Rows::fixed(4),
+        F32Rows::fixed(3),
+        F32Rows::fixed(3),
+        F32Rows::fixed(3),
+    ];
+    state.extend((0..8).map(|_| F32Rows::list()));
+    for (id, t) in trajs.iter().enumerate() {
+        for (k, s) in t.steps.iter().enumerate() {
+            traj_id.push(id as u32);
+            step.push(k as u32);
+            masked.push(s.masked);
+            ref_clip.push(s.ref_clip);
+            ref_frame.push(s.ref_frame);
+            condition.push(t.condition);
+            skill.push(t.target_skill.as_str());
+            kind.push(t.kind_label());
+            fallback.push(t.fallback);
+            cc.push(t.centroid.0);
+            cf.push(t.centroid.1);
+            beta.push(t.beta);
+            nm.push(t.n_masked);
+            let st = &t.start;
+            let parts: [&[f32]; 13] = [
+                &st.root_pos,
+                &st.root_rot,
+                &st.root_rot_expmap,
+                &st.root_linvel,
+                &st.root_angvel,
+                &st.joint_rot,
+                &st.joint_vel,
+                &st.body_pos,
+                &st.body_vel,
+                &st.obj_pos,
+                &st.obj_rot,
+                &st.obj_linvel,
+                &st.obj_angvel,
+            ];
+            for (c, v) in state.iter_mut().zip(parts) {
+                c.push((k == 0).then_some(v));
+            }
+        }
+    }
+    let mut arrays: Vec<ArrayRef> = vec![
+        Arc::new(UInt32Array::from(traj_id)),
+        Arc::new(UInt32Array::from(step)),
+        Arc::new(BooleanArray::from(masked)),
+        Arc::new(UInt32Array::from(ref_clip)),
+        Arc::new(UInt32Array::from(ref_frame)),
+        Arc::new(UInt32Array::from(condition)),
+        Arc::new(StringArray::from_iter_values(skill)),
+        Arc::new(StringArray::from_iter_values(kind)),
+        Arc::new(BooleanArray::from(fallback)),
+        Arc::new(UInt32Array::from(cc)),
+        Arc::new(UInt32Array::from(cf)),
+        Arc::new(Float64Array::from(beta)),
+        Arc::new(UInt32Array::from(nm)),
+    ];
+    arrays.extend(state.into_iter().map(F32Rows::finish));
+    Ok(RecordBatch::try_new(schema_of(&columns()), arrays)?)
+}
+
+/// An integer column as u64 values (any Arrow integer type, no nulls or
+/// negatives).
+fn ints(b: &RecordBatch, name: &str, path: &Path) -> Result<Vec<u64>> {
+    let a = col(b, name, path)?;
+    if a.null_count() > 0 {
+        bail!("{}: column `{name}` has null values", path.display());
+    }
+    macro_rules! conv {
+        ($t:ty) => {
+            a.as_primitive::<$t>()
+                .values()
+                .iter()
+                .map(|v| u64::try_from(*v).ok())
+                .collect::<Option<Vec<u64>>>()
+        };
+    }
+    let v = match a.data_type() {
+        DataType::UInt8 => conv!(UInt8Type),
+        DataType::UInt16 => conv!(UInt16Type),
+        DataType::UInt32 => conv!(UInt32Type),
+        DataType::UInt64 => conv!(UInt64Type),
+        DataType::Int8 => conv!(Int8Type),
+        DataType::Int16 => conv!(Int16Type),
+        DataType::Int32 => conv!(Int32Type),
+        DataType::Int64 => conv!(Int64Type),
+        t => bail!(
+            "{}: column `{name}` is {t:?}, expected an integer (UInt32)",
+            path.display()
+        ),
+    };
+    v.ok_or_else(|| anyhow!("{}: column `{name}` has negative values", path.display()))
+}
+
+/// Read an ATS rewards table: columns `clip_id` (UInt32; any integer type
+/// is accepted), `frame` (UInt32) and `mean_reward` (Float64 or Float32), one
+/// row per (clip, start frame). Returns (clip_id, frame, mean_reward) rows.
+pub fn read_rewards(path: &Path) -> Result<Vec<(u32, u32, f64)>> {
+    let t = super::io::read_parquet(path)?;
+    let mut out = Vec::new();
+    for b in &t.batches {
+        let clip = ints(b, "clip_id", path)?;
+        let frame = ints(b, "frame", path)?;
+        let r = col(b, "mean_reward", path)?;
+        if r.null_count() > 0 {
+            bail!("{}: column `mean_reward` has null values", path.display());
+        }
+        let r: Vec<f64> = match r.data_type() {
+            DataType::Float64 => r.as_primitive::<Float64Type>().values().to_vec(),
+            DataType::Float32 => r
+                .as_primitive::<Float32Type>()
+                .values()
+                .iter()
+                .map(|v| *v as f64)
+                .collect(),
+            t => bail!(
+                "{}: column `mean_reward` is {t:?}, expected Float64 or Float32",
+                path.display()
+            ),
+        };
+        for i in 0..b.num_rows() {
+            let c = u32::try_from(clip[i]).map_err(|_| {
+                anyhow!("{}: row {i}: clip_id {} too large", path.display(), clip[i])
+            })?;
+            let f = u32::try_from(frame[i]).map_err(|_| {
+                anyhow!("{}: row {i}: frame {} too large", path.display(), frame[i])
+            })?;
+            if !r[i].is_finite() {
+                bail!(
+                    "{}: column `mean_reward`: row {i} (clip {c}, frame {f}) is {}",
+                    path.display(),
+                    r[i]
+                );
+            }
+            out.push((c, f, r[i]));
+        }
+    }
+    Ok(out)
+}
