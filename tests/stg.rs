@@ -161,3 +161,27 @@ fn outputs_are_deterministic_and_parahome_is_refused() {
         "{err}"
     );
 }
+
+#[test]
+fn dataset_kind_follows_the_clips_not_the_folder_name() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, kind) in [
+        ("locomotion", DatasetKind::Locomotion),
+        ("ballplay", DatasetKind::BallPlay),
+        ("parahome", DatasetKind::ParaHome),
+    ] {
+        let out = dir.path().join(name);
+        ok(&[
+            "ingest",
+            "--dataset",
+            name,
+            "--out",
+            out.to_str().unwrap(),
+            "-q",
+        ]);
+        assert_eq!(
+            DatasetKind::of_library(&table::load_library(&out).unwrap()),
+            kind
+        );
+    }
+}

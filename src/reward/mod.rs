@@ -41,12 +41,16 @@ pub enum DatasetKind {
 }
 
 impl DatasetKind {
-    /// The kind of a manifest dataset name (`ballplay`, `ballplay-m`, ...).
-    pub fn from_dataset(name: &str, skeleton: Skeleton) -> DatasetKind {
-        match (name, skeleton) {
-            (_, Skeleton::ParaHome) => DatasetKind::ParaHome,
-            ("locomotion", _) => DatasetKind::Locomotion,
-            _ => DatasetKind::BallPlay,
+    /// The kind of an ingested library: the ParaHome skeleton is ParaHome;
+    /// clips without any object (the Locomotion manifest drops its dummy
+    /// ball) are Locomotion; the rest is BallPlay.
+    pub fn of_library(lib: &crate::motion::MotionLib) -> DatasetKind {
+        if lib.skeleton == Skeleton::ParaHome {
+            DatasetKind::ParaHome
+        } else if lib.frames.iter().all(|f| f.n_objects == 0) {
+            DatasetKind::Locomotion
+        } else {
+            DatasetKind::BallPlay
         }
     }
 }

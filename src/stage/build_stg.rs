@@ -59,7 +59,7 @@ pub fn run(common: &Common, per_target_flag: bool) -> Result<()> {
             common.input_dir().display()
         );
     }
-    let kind = DatasetKind::from_dataset(&lib.clips[0].dataset, lib.skeleton);
+    let kind = DatasetKind::of_library(&lib);
     let weights = Weights::sm(kind);
     let params = StgParams {
         tau: cfg.tau,

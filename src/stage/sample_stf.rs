@@ -290,10 +290,7 @@ pub fn run(common: &Common) -> Result<()> {
     } else {
         load_rewards(Path::new(&cfg.rewards), &lib, &mut ats)?
     };
-    let weights = Weights::sm(DatasetKind::from_dataset(
-        &lib.clips[0].dataset,
-        lib.skeleton,
-    ));
+    let weights = Weights::sm(DatasetKind::of_library(&lib));
     let sampler = StfSampler::new(&lib, &edges, weights);
     let aw = ats.weights(&ats_params);
     let seed = common.args.seed;
