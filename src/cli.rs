@@ -23,6 +23,8 @@ pub enum Command {
     SampleStf(SampleStfArgs),
     /// Pre-train the history encoder by behaviour cloning (he.safetensors)
     PretrainHe(PretrainHeArgs),
+    /// Forward kinematics of the MJCF humanoid against the clips' body positions
+    CheckFk(StageArgs),
     /// Summarise a skillaug Parquet file: rows, clips, skills, frames, value ranges
     Inspect(InspectArgs),
     /// Print a table's schema, one field per line

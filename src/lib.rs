@@ -16,6 +16,7 @@ pub mod nn;
 pub mod progress;
 pub mod pt;
 pub mod reward;
+pub mod sim;
 pub mod stage;
 pub mod table;
 
@@ -31,6 +32,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::PretrainHe(a) => {
             stage::pretrain_he::run(&stage::Common::new(a.common)?, a.device.as_deref())
         }
+        Command::CheckFk(a) => stage::check_fk::run(&stage::Common::new(a)?),
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => stage::schema::run(&a.name),
         Command::Bench(a) => stage::bench::run(&a.name, a.repeat, a.data_root),

@@ -60,10 +60,11 @@
 //! rotation (composed like the root), linear and angular velocity. Body
 //! positions move rigidly with the root (translated by the root offset,
 //! turned about the root by the root's rotation noise) and body velocities
-//! by the root's velocity offset. **Known limitation:** there is no forward
-//! kinematics yet (the simulator will provide it), so joint noise does not
-//! move the bodies: the similarity of a noised start sees joint noise only in
-//! its rotation term, and root and object noise in its position terms.
+//! by the root's velocity offset. With the humanoid model set
+//! ([`StfSampler::with_model`], what `sample-stf` does by default) the body
+//! positions then follow the joint noise through forward kinematics of the
+//! MJCF ([`refresh_bodies`]); without it, joint noise does not move the
+//! bodies.
 //!
 //! Pure code and deterministic for a given RNG: the stage gives each
 //! trajectory its own ChaCha stream.
@@ -421,6 +422,29 @@ pub fn perturb<R: Rng>(s: &State, eps: &Eps, noise: Noise, rng: &mut R) -> State
     o
 }
 
+/// Body positions of a perturbed state from forward kinematics:
+/// `stored + FK(perturbed) - FK(original)`, so joint noise moves the bodies
+/// while the stored capture positions (which differ from the model's FK by
+/// 3-5 cm on BallPlay, `skillaug check-fk`) stay the baseline.
+pub fn refresh_bodies(original: &State, perturbed: &mut State, model: &crate::sim::mjcf::Model) {
+    use crate::sim::mjcf::forward_kinematics;
+    let before = forward_kinematics(
+        model,
+        original.root_pos,
+        original.root_rot,
+        &original.joint_rot,
+    );
+    let after = forward_kinematics(
+        model,
+        perturbed.root_pos,
+        perturbed.root_rot,
+        &perturbed.joint_rot,
+    );
+    for (k, b) in perturbed.body_pos.iter_mut().enumerate() {
+        *b = original.body_pos[k] + (after[k] - before[k]);
+    }
+}
+
 /// Samples trajectories from the STF of a motion library (precomputes the
 /// candidate frames of Eq. 6 and groups the STG edges by target skill).
 pub struct StfSampler<'a> {
@@ -432,9 +456,28 @@ pub struct StfSampler<'a> {
     skill_clips: BTreeMap<String, Vec<usize>>,
     /// STG edges by target skill (only those whose clips exist).
     edges: BTreeMap<String, Vec<Edge>>,
+    /// The humanoid model, for forward kinematics of perturbed starts.
+    model: Option<crate::sim::mjcf::Model>,
 }
 
 impl<'a> StfSampler<'a> {
+    /// Use `model`'s forward kinematics for the body positions of perturbed
+    /// starts (see [`refresh_bodies`]).
+    pub fn with_model(mut self, model: crate::sim::mjcf::Model) -> Self {
+        self.model = Some(model);
+        self
+    }
+
+    /// [`perturb`], then the body positions from forward kinematics when a
+    /// model is set.
+    fn perturb_fk<R: Rng>(&self, s: &State, eps: &Eps, noise: Noise, rng: &mut R) -> State {
+        let mut o = perturb(s, eps, noise, rng);
+        if let Some(m) = &self.model {
+            refresh_bodies(s, &mut o, m);
+        }
+        o
+    }
+
     /// A sampler over `lib` with the STG `edges` (may be empty) and the
     /// similarity weights of the dataset ([`Weights::sm`]).
     pub fn new(lib: &'a MotionLib, edges: &[Edge], weights: Weights) -> StfSampler<'a> {
@@ -469,6 +512,7 @@ impl<'a> StfSampler<'a> {
             cands,
             skill_clips,
             edges: by,
+            model: None,
         }
     }
 
@@ -537,7 +581,7 @@ impl<'a> StfSampler<'a> {
                 };
                 let noised = rng.random::<f64>() < p.p_n;
                 let s = if noised {
-                    perturb(&s, eps, p.noise, rng)
+                    self.perturb_fk(&s, eps, p.noise, rng)
                 } else {
                     s
                 };
@@ -547,7 +591,8 @@ impl<'a> StfSampler<'a> {
                 let (f, s) = rsi(&mut *rng)?;
                 let noised = rng.random::<f64>() < p.p_n;
                 if noised {
-                    let (s, kind, centroid, hint) = rsi_start(f, perturb(&s, eps, p.noise, rng));
+                    let (s, kind, centroid, hint) =
+                        rsi_start(f, self.perturb_fk(&s, eps, p.noise, rng));
                     (s, kind, centroid, hint, true)
                 } else if rng.random::<f64>() < p.p_e && !edges.is_empty() {
                     let here: Vec<&Edge> = edges

@@ -49,17 +49,17 @@ impl Default for IngestConfig {
 }
 
 /// One clip read and derived.
-struct Ingested {
-    src: ClipSource,
-    sha256: String,
-    layout: Layout,
-    fps: f64,
-    objects: Vec<String>,
-    frames: ClipFrames,
+pub(crate) struct Ingested {
+    pub(crate) src: ClipSource,
+    pub(crate) sha256: String,
+    pub(crate) layout: Layout,
+    pub(crate) fps: f64,
+    pub(crate) objects: Vec<String>,
+    pub(crate) frames: ClipFrames,
 }
 
 /// Read, check and derive one clip.
-fn ingest_clip(src: &ClipSource, set: &ClipSet, cfg: &IngestConfig) -> Result<Ingested> {
+pub(crate) fn ingest_clip(src: &ClipSource, set: &ClipSet, cfg: &IngestConfig) -> Result<Ingested> {
     let bytes = std::fs::read(&src.path).context("cannot read the file")?;
     let sha256 = hex::encode(Sha256::digest(&bytes));
     if let Some(want) = &src.sha256 {
@@ -118,11 +118,8 @@ fn ingest_clip(src: &ClipSource, set: &ClipSet, cfg: &IngestConfig) -> Result<In
     })
 }
 
-/// Run the stage.
-pub fn run(common: &Common, skip_bad_flag: bool) -> Result<()> {
-    let started = Instant::now();
-    let mut cfg: IngestConfig = common.settings("ingest")?;
-    cfg.skip_bad |= skip_bad_flag;
+/// The clips a run selects: a manifest (`--dataset`) or a folder (`--from`).
+pub(crate) fn clip_set(common: &Common, cfg: &IngestConfig) -> Result<ClipSet> {
     let set = match (&common.args.dataset, &common.args.from) {
         (Some(name), None) => {
             let manifest = dataset::find_manifest(name)?;
@@ -139,11 +136,21 @@ pub fn run(common: &Common, skip_bad_flag: bool) -> Result<()> {
             }
             s
         }
-        _ => bail!("ingest needs --dataset NAME or --from DIR"),
+        _ => bail!("this command needs --dataset NAME or --from DIR"),
     };
     if set.clips.is_empty() {
         bail!("no clips selected");
     }
+
+    Ok(set)
+}
+
+/// Run the stage.
+pub fn run(common: &Common, skip_bad_flag: bool) -> Result<()> {
+    let started = Instant::now();
+    let mut cfg: IngestConfig = common.settings("ingest")?;
+    cfg.skip_bad |= skip_bad_flag;
+    let set = clip_set(common, &cfg)?;
 
     let bar = progress::bar(set.clips.len() as u64, "ingest", common.args.quiet);
     let results: Vec<(ClipSource, Result<Ingested>)> = set

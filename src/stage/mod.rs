@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod build_stg;
+pub mod check_fk;
 pub mod ingest;
 pub mod inspect;
 pub mod pretrain_he;

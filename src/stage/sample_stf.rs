@@ -31,6 +31,9 @@ use std::time::Instant;
 pub struct StfConfig {
     /// Trajectories to sample.
     pub trajectories: u32,
+    /// Move the bodies of perturbed starts by forward kinematics of the MJCF
+    /// humanoid (data root `assets/mjcf/`); false = rigidly with the root only.
+    pub fk: bool,
     /// Policy steps per trajectory at most (episode length T, Table 6).
     pub horizon: u32,
     /// Probability of an external (STG) start; must be 0 for ParaHome.
@@ -74,6 +77,7 @@ impl Default for StfConfig {
         let a = AtsParams::default();
         StfConfig {
             trajectories: 1000,
+            fk: true,
             horizon: p.horizon as u32,
             p_e: p.p_e,
             p_n: p.p_n,
@@ -291,7 +295,17 @@ pub fn run(common: &Common) -> Result<()> {
         load_rewards(Path::new(&cfg.rewards), &lib, &mut ats)?
     };
     let weights = Weights::sm(DatasetKind::of_library(&lib));
-    let sampler = StfSampler::new(&lib, &edges, weights);
+    let mut sampler = StfSampler::new(&lib, &edges, weights);
+    if cfg.fk && cfg.p_n > 0.0 {
+        let root = crate::dataset::data_root(common.args.data_root.as_deref())?;
+        let path = root
+            .join("assets/mjcf")
+            .join(format!("{}.xml", lib.skeleton.name()));
+        let model = crate::sim::mjcf::Model::load(&path).map_err(|e| {
+            anyhow::anyhow!("{e:#} (needed for the forward kinematics of perturbed starts; --set sample-stf.fk=false moves bodies rigidly instead)")
+        })?;
+        sampler = sampler.with_model(model);
+    }
     let aw = ats.weights(&ats_params);
     let seed = common.args.seed;
     let trajs: Vec<Trajectory> = (0..cfg.trajectories)

@@ -1,0 +1,102 @@
+//! `skillaug check-fk`: forward kinematics of the MJCF humanoid with exp-map
+//! joints (reference §1.4) against the body positions stored in the clips.
+//! Mean and max error per clip; ParaHome should agree to a few millimetres,
+//! BallPlay and Locomotion to a few centimetres (the capture skeleton's limb
+//! lengths differ from the model's).
+
+use super::ingest::{clip_set, ingest_clip, IngestConfig};
+use super::Common;
+use crate::dataset;
+use crate::sim::mjcf::{forward_kinematics, Model};
+use anyhow::{bail, Context, Result};
+use rayon::prelude::*;
+
+/// FK error of one clip, m.
+#[derive(Clone, Debug)]
+pub struct FkError {
+    /// Clip name.
+    pub name: String,
+    /// Valid frames compared.
+    pub frames: usize,
+    /// Mean distance over bodies and frames.
+    pub mean: f64,
+    /// Largest distance.
+    pub max: f64,
+}
+
+/// FK errors of every clip the arguments select.
+pub fn errors(common: &Common) -> Result<Vec<FkError>> {
+    let cfg: IngestConfig = common.settings("ingest")?;
+    let set = clip_set(common, &cfg)?;
+    let root = dataset::data_root(common.args.data_root.as_deref())?;
+    let clips = set
+        .clips
+        .par_iter()
+        .map(|src| ingest_clip(src, &set, &cfg).with_context(|| format!("{}", src.path.display())))
+        .collect::<Result<Vec<_>>>()?;
+    let mut models: Vec<(String, Model)> = Vec::new();
+    let mut out = Vec::new();
+    for c in &clips {
+        let sk = c.layout.skeleton();
+        if !models.iter().any(|(n, _)| n == sk.name()) {
+            let path = root.join("assets/mjcf").join(format!("{}.xml", sk.name()));
+            let m = Model::load(&path)?;
+            if m.names() != sk.body_names() {
+                bail!(
+                    "{}: body names or order differ from the {} skeleton",
+                    path.display(),
+                    sk
+                );
+            }
+            models.push((sk.name().to_string(), m));
+        }
+        let m = &models.iter().find(|(n, _)| n == sk.name()).unwrap().1;
+        let f = &c.frames;
+        let (mut sum, mut max, mut n, mut frames) = (0.0f64, 0.0f64, 0usize, 0usize);
+        for i in 0..f.frames {
+            let Some(s) = f.state(i) else { continue };
+            let p = forward_kinematics(m, s.root_pos, s.root_rot, &s.joint_rot);
+            for (a, b) in p.chunks_exact(3).zip(s.body_pos.chunks_exact(3)) {
+                let d = ((a[0] - b[0]) as f64)
+                    .hypot((a[1] - b[1]) as f64)
+                    .hypot((a[2] - b[2]) as f64);
+                sum += d;
+                max = max.max(d);
+                n += 1;
+            }
+            frames += 1;
+        }
+        out.push(FkError {
+            name: c.src.name.clone(),
+            frames,
+            mean: sum / n.max(1) as f64,
+            max,
+        });
+    }
+    Ok(out)
+}
+
+/// Run the command: print the table.
+pub fn run(common: &Common) -> Result<()> {
+    let errs = errors(common)?;
+    println!(
+        "{:<40} {:>6} {:>9} {:>9}",
+        "clip", "frames", "mean cm", "max cm"
+    );
+    for e in &errs {
+        println!(
+            "{:<40} {:>6} {:>9.2} {:>9.2}",
+            e.name,
+            e.frames,
+            100.0 * e.mean,
+            100.0 * e.max
+        );
+    }
+    let worst = errs.iter().map(|e| e.mean).fold(0.0, f64::max);
+    println!(
+        "{} clips; worst clip mean error {:.2} cm",
+        errs.len(),
+        100.0 * worst
+    );
+    Ok(())
+}
