@@ -16,7 +16,7 @@ ci:
 
 # Re-bless the schema golden files after an intended change.
 bless-schemas:
-    for t in clips frames; do cargo run --release -q -- schema $t > schemas/$t.txt; done
+    for t in clips frames stg_edges stg_summary stf_samples he_loss he_embeddings; do cargo run --release -q -- schema $t > schemas/$t.txt; done
 
 # Ingest every shipped dataset and time it.
 bench-ingest:
