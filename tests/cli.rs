@@ -53,16 +53,7 @@ fn schema_prints_the_golden_files() {
 
 #[test]
 fn inspect_summarises_frames_per_skill() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    ok(&[
-        "ingest",
-        "--dataset",
-        "ballplay",
-        "--out",
-        out.to_str().unwrap(),
-        "-q",
-    ]);
+    let (_dir, out) = ingested("ballplay");
     let s = ok(&["inspect", out.join("frames.parquet").to_str().unwrap()]);
     assert!(s.contains("table     frames"), "{s}");
     assert!(s.contains("clips     6"), "{s}");

@@ -38,16 +38,7 @@ fn pretrain(out: &Path, steps: usize, seed: &str) -> String {
 
 #[test]
 fn pretraining_learns_and_writes_every_output() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    ok(&[
-        "ingest",
-        "--dataset",
-        "ballplay",
-        "--out",
-        out.to_str().unwrap(),
-        "-q",
-    ]);
+    let (_dir, out) = ingested("ballplay");
     let stdout = pretrain(&out, 200, "1");
     assert!(stdout.contains("prediction loss"), "{stdout}");
     for f in [
@@ -84,16 +75,7 @@ fn pretraining_learns_and_writes_every_output() {
 
 #[test]
 fn same_seed_same_bytes_and_the_frozen_encoder_repeats() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    ok(&[
-        "ingest",
-        "--dataset",
-        "ballplay",
-        "--out",
-        out.to_str().unwrap(),
-        "-q",
-    ]);
+    let (dir, out) = ingested("ballplay");
     pretrain(&out, 5, "7");
     let w1 = std::fs::read(out.join("he.safetensors")).unwrap();
     let e1 = std::fs::read(out.join("he_embeddings.parquet")).unwrap();

@@ -256,16 +256,7 @@ fn every_dataset_ingests_bit_exact_with_reference_velocities() {
 
 #[test]
 fn clips_table_records_manifest_facts() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    ok(&[
-        "ingest",
-        "--dataset",
-        "parahome",
-        "--out",
-        out.to_str().unwrap(),
-        "-q",
-    ]);
+    let (_dir, out) = ingested("parahome");
     let clips = read_parquet(&out.join("clips.parquet")).unwrap();
     let labels = strs(&clips, "label");
     assert!(labels.contains(&"Stand-Chair".to_string()));
@@ -408,16 +399,7 @@ fn missing_frames_become_invalid_rows_with_carried_velocities() {
 
 #[test]
 fn pyarrow_reads_the_tables() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    ok(&[
-        "ingest",
-        "--dataset",
-        "ballplay",
-        "--out",
-        out.to_str().unwrap(),
-        "-q",
-    ]);
+    let (_dir, out) = ingested("ballplay");
     let script = r##"
 import sys, pyarrow.parquet as pq
 out = sys.argv[1]
@@ -492,16 +474,7 @@ fn python_with_pyarrow() -> std::path::PathBuf {
 
 #[test]
 fn the_library_reads_back_what_ingest_derived() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    ok(&[
-        "ingest",
-        "--dataset",
-        "parahome",
-        "--out",
-        out.to_str().unwrap(),
-        "-q",
-    ]);
+    let (_dir, out) = ingested("parahome");
     let lib = skillaug::table::load_library(&out).unwrap();
     assert_eq!(lib.clips.len(), 7);
     assert_eq!(lib.skills().len(), 7);

@@ -29,16 +29,7 @@ fn forward_kinematics_of_the_mjcf_reproduces_the_stored_body_positions() {
 fn joint_noise_moves_the_child_bodies_through_forward_kinematics() {
     use skillaug::augment::stf::refresh_bodies;
     use skillaug::sim::mjcf::Model;
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    ok(&[
-        "ingest",
-        "--dataset",
-        "ballplay",
-        "--out",
-        out.to_str().unwrap(),
-        "-q",
-    ]);
+    let (_dir, out) = ingested("ballplay");
     let lib = skillaug::table::load_library(&out).unwrap();
     let model = Model::load(&data_root().join("assets/mjcf/mocap_humanoid.xml")).unwrap();
     assert_eq!(model.bodies.len(), 53);

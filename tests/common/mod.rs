@@ -44,6 +44,21 @@ pub fn fails(args: &[&str]) -> String {
     err
 }
 
+/// A temporary folder with `dataset` ingested into its `run/` subfolder.
+pub fn ingested(dataset: &str) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    ok(&[
+        "ingest",
+        "--dataset",
+        dataset,
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
+    (dir, out)
+}
+
 /// Names of the entries in `dir` (empty if it does not exist).
 pub fn entries(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> = std::fs::read_dir(dir)
