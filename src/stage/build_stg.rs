@@ -75,44 +75,26 @@ pub fn run(common: &Common, per_target_flag: bool) -> Result<()> {
     let secs = started.elapsed().as_secs_f64();
 
     let resolved = common.resolved_toml("build-stg", &cfg)?;
-    let meta = |t: &str| -> Vec<(String, String)> {
-        vec![
-            ("skillaug.table".into(), t.into()),
-            (
-                "skillaug.schema_version".into(),
-                table::SCHEMA_VERSION.to_string(),
-            ),
-            ("skillaug.version".into(), env!("CARGO_PKG_VERSION").into()),
-            ("skillaug.dataset".into(), lib.clips[0].dataset.clone()),
-            (
-                "skillaug.direction".into(),
-                if cfg.per_target {
-                    "per-target"
-                } else {
-                    "paper"
-                }
-                .into(),
-            ),
-            (
-                "skillaug.weights".into(),
-                serde_json::to_string(&weights).unwrap_or_default(),
-            ),
-            (
-                "skillaug.config_hash".into(),
-                crate::config::hash_text(&resolved),
-            ),
-        ]
-    };
+    let meta = table::Meta::new(&lib.clips[0].dataset, &resolved)
+        .with(
+            "direction",
+            if cfg.per_target {
+                "per-target"
+            } else {
+                "paper"
+            },
+        )
+        .with("weights", serde_json::to_string(&weights)?);
     let mut out = Outputs::new(&common.args.out)?;
     out.parquet(
         "stg_edges.parquet",
         &table::stg::batch(&edges)?,
-        &meta("stg_edges"),
+        &meta.table("stg_edges"),
     )?;
     out.parquet(
         "stg_summary.parquet",
         &table::stg::summary_batch(&summary)?,
-        &meta("stg_summary"),
+        &meta.table("stg_summary"),
     )?;
     out.text("build-stg.resolved.toml", &resolved)?;
     out.commit()?;

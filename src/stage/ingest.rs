@@ -227,8 +227,8 @@ pub fn run(common: &Common, skip_bad_flag: bool) -> Result<()> {
     let resolved = common.resolved_toml("ingest", &cfg)?;
     let meta = metadata(&set.dataset, skeleton, &good, &cfg, &resolved)?;
     let mut out = Outputs::new(&common.args.out)?;
-    let clips_meta = with_table("clips", &meta);
-    let frames_meta = with_table("frames", &meta);
+    let clips_meta = meta.table("clips");
+    let frames_meta = meta.table("frames");
     out.parquet("clips.parquet", &table::clips::batch(&rows)?, &clips_meta)?;
     out.parquet(
         "frames.parquet",
@@ -247,12 +247,6 @@ pub fn run(common: &Common, skip_bad_flag: bool) -> Result<()> {
     Ok(())
 }
 
-fn with_table(name: &str, meta: &[(String, String)]) -> Vec<(String, String)> {
-    let mut v = vec![("skillaug.table".to_string(), name.to_string())];
-    v.extend_from_slice(meta);
-    v
-}
-
 /// Key-value metadata common to both tables.
 fn metadata(
     dataset: &str,
@@ -260,7 +254,7 @@ fn metadata(
     clips: &[Ingested],
     cfg: &IngestConfig,
     resolved: &str,
-) -> Result<Vec<(String, String)>> {
+) -> Result<table::Meta> {
     let fps: Vec<f64> = clips.iter().map(|c| c.fps).collect();
     let fps_text = if fps.iter().all(|f| *f == fps[0]) {
         format!("{}", fps[0])
@@ -271,43 +265,20 @@ fn metadata(
         .iter()
         .map(|c| (c.src.source.as_str(), c.sha256.as_str()))
         .collect();
-    let s = |v: &str| v.to_string();
-    Ok(vec![
-        (
-            s("skillaug.schema_version"),
-            table::SCHEMA_VERSION.to_string(),
-        ),
-        (s("skillaug.version"), s(env!("CARGO_PKG_VERSION"))),
-        (s("skillaug.dataset"), s(dataset)),
-        (s("skillaug.skeleton"), s(skeleton.name())),
-        (s("skillaug.n_joints"), skeleton.n_joints().to_string()),
-        (s("skillaug.n_bodies"), skeleton.n_bodies().to_string()),
-        (
-            s("skillaug.body_names"),
-            serde_json::to_string(skeleton.body_names())?,
-        ),
-        (s("skillaug.quaternion_order"), s("xyzw")),
-        (s("skillaug.fps"), fps_text),
-        (
-            s("skillaug.angvel_frame"),
-            serde_json::to_value(cfg.angvel_frame)?
-                .as_str()
-                .unwrap_or_default()
-                .to_string(),
-        ),
-        (
-            s("skillaug.obj_angvel"),
-            serde_json::to_value(cfg.obj_angvel)?
-                .as_str()
-                .unwrap_or_default()
-                .to_string(),
-        ),
-        (s("skillaug.source_sha256"), serde_json::to_string(&hashes)?),
-        (
-            s("skillaug.config_hash"),
-            crate::config::hash_text(resolved),
-        ),
-    ])
+    let name = |v: serde_json::Value| v.as_str().unwrap_or_default().to_string();
+    Ok(table::Meta::new(dataset, resolved)
+        .with("skeleton", skeleton.name())
+        .with("n_joints", skeleton.n_joints().to_string())
+        .with("n_bodies", skeleton.n_bodies().to_string())
+        .with("body_names", serde_json::to_string(skeleton.body_names())?)
+        .with("quaternion_order", "xyzw")
+        .with("fps", fps_text)
+        .with(
+            "angvel_frame",
+            name(serde_json::to_value(cfg.angvel_frame)?),
+        )
+        .with("obj_angvel", name(serde_json::to_value(cfg.obj_angvel)?))
+        .with("source_sha256", serde_json::to_string(&hashes)?))
 }
 
 fn print_summary(clips: &[Ingested], out: &std::path::Path, secs: f64) {

@@ -298,30 +298,10 @@ pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
     let first = curve[0].prediction;
     let tail = &curve[curve.len().saturating_sub(50)..];
     let last = tail.iter().map(|r| r.prediction).sum::<f64>() / tail.len() as f64;
-    let meta = |t: &str| -> Vec<(String, String)> {
-        vec![
-            ("skillaug.table".into(), t.into()),
-            (
-                "skillaug.schema_version".into(),
-                table::SCHEMA_VERSION.to_string(),
-            ),
-            ("skillaug.version".into(), env!("CARGO_PKG_VERSION").into()),
-            ("skillaug.dataset".into(), lib.clips[0].dataset.clone()),
-            ("skillaug.seed".into(), common.args.seed.to_string()),
-            (
-                "skillaug.separation_untrained".into(),
-                format!("{sep_before:.6}"),
-            ),
-            (
-                "skillaug.separation_trained".into(),
-                format!("{sep_after:.6}"),
-            ),
-            (
-                "skillaug.config_hash".into(),
-                crate::config::hash_text(&resolved),
-            ),
-        ]
-    };
+    let meta = table::Meta::new(&lib.clips[0].dataset, &resolved)
+        .with("seed", common.args.seed.to_string())
+        .with("separation_untrained", format!("{sep_before:.6}"))
+        .with("separation_trained", format!("{sep_after:.6}"));
     let emb_rows: Vec<(u32, u32, String, [f32; 3])> = trained
         .iter()
         .map(|(c, t, h)| (*c as u32, *t as u32, lib.clips[*c].skill.clone(), *h))
@@ -339,12 +319,12 @@ pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
     out.parquet(
         "he_loss.parquet",
         &table::he::loss_batch(&curve)?,
-        &meta("he_loss"),
+        &meta.table("he_loss"),
     )?;
     out.parquet(
         "he_embeddings.parquet",
         &table::he::embedding_batch(&emb_rows)?,
-        &meta("he_embeddings"),
+        &meta.table("he_embeddings"),
     )?;
     out.text("pretrain-he.resolved.toml", &resolved)?;
     out.commit()?;

@@ -325,30 +325,15 @@ pub fn run(common: &Common) -> Result<()> {
     let secs = started.elapsed().as_secs_f64();
 
     let resolved = common.resolved_toml("sample-stf", &cfg)?;
-    let meta = vec![
-        ("skillaug.table".into(), "stf_samples".into()),
-        (
-            "skillaug.schema_version".into(),
-            table::SCHEMA_VERSION.to_string(),
-        ),
-        ("skillaug.version".into(), env!("CARGO_PKG_VERSION").into()),
-        ("skillaug.dataset".into(), lib.clips[0].dataset.clone()),
-        ("skillaug.skeleton".into(), lib.skeleton.name().to_string()),
-        ("skillaug.seed".into(), seed.to_string()),
-        ("skillaug.stg_edges".into(), edges.len().to_string()),
-        ("skillaug.rewards".into(), cfg.rewards.clone()),
-        (
-            "skillaug.weights".into(),
-            serde_json::to_string(&weights).unwrap_or_default(),
-        ),
-        (
-            "skillaug.config_hash".into(),
-            crate::config::hash_text(&resolved),
-        ),
-    ];
+    let meta = table::Meta::new(&lib.clips[0].dataset, &resolved)
+        .with("skeleton", lib.skeleton.name())
+        .with("seed", seed.to_string())
+        .with("stg_edges", edges.len().to_string())
+        .with("rewards", cfg.rewards.clone())
+        .with("weights", serde_json::to_string(&weights)?);
     let batch = table::stf::batch(&trajs)?;
     let mut out = Outputs::new(&common.args.out)?;
-    out.parquet("stf_samples.parquet", &batch, &meta)?;
+    out.parquet("stf_samples.parquet", &batch, &meta.table("stf_samples"))?;
     out.text("sample-stf.resolved.toml", &resolved)?;
     out.commit()?;
 

@@ -77,6 +77,41 @@ pub fn schema_of(cols: &[ColumnSpec]) -> Arc<Schema> {
     ))
 }
 
+/// Key-value metadata of a stage's tables: the keys every table carries
+/// (schema version, skillaug version, dataset, resolved-settings hash), then
+/// the stage's own, all under `skillaug.`; [`Meta::table`] puts
+/// `skillaug.table` first.
+#[derive(Clone, Debug)]
+pub struct Meta(Vec<(String, String)>);
+
+impl Meta {
+    /// The common keys for `dataset` and the stage's resolved settings text.
+    pub fn new(dataset: &str, resolved: &str) -> Meta {
+        Meta(vec![
+            ("skillaug.schema_version".into(), SCHEMA_VERSION.to_string()),
+            ("skillaug.version".into(), env!("CARGO_PKG_VERSION").into()),
+            ("skillaug.dataset".into(), dataset.into()),
+            (
+                "skillaug.config_hash".into(),
+                crate::config::hash_text(resolved),
+            ),
+        ])
+    }
+
+    /// Add `skillaug.<key>` = `value`.
+    pub fn with(mut self, key: &str, value: impl Into<String>) -> Meta {
+        self.0.push((format!("skillaug.{key}"), value.into()));
+        self
+    }
+
+    /// The list for table `name`.
+    pub fn table(&self, name: &str) -> Vec<(String, String)> {
+        let mut v = vec![("skillaug.table".to_string(), name.to_string())];
+        v.extend_from_slice(&self.0);
+        v
+    }
+}
+
 /// Load the ingested clips of a run folder (`clips.parquet`, `frames.parquet`).
 pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::MotionLib> {
     use anyhow::Context;
