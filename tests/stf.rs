@@ -19,8 +19,7 @@ use std::sync::Arc;
 
 /// Ingest BallPlay into `dir/run` (and build the STG when asked).
 fn run_dir(dir: &Path, stg: bool) -> String {
-    let out = dir.join("run");
-    let o = out.to_str().unwrap().to_string();
+    let o = dir.join("run").to_str().unwrap().to_string();
     ok(&["ingest", "--dataset", "ballplay", "--out", &o, "-q"]);
     if stg {
         ok(&["build-stg", "--out", &o, "-q"]);

@@ -8,23 +8,10 @@ use skillaug::reward::{self, Align, DatasetKind, Weights};
 use skillaug::table::{self, io::read_parquet};
 use std::path::Path;
 
-fn ingest(dir: &Path, dataset: &str) -> String {
-    let out = dir.join("run");
-    ok(&[
-        "ingest",
-        "--dataset",
-        dataset,
-        "--out",
-        out.to_str().unwrap(),
-        "-q",
-    ]);
-    out.to_str().unwrap().to_string()
-}
-
 #[test]
 fn paper_direction_edges_are_argmax_connections_with_eq20_counts() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = ingest(dir.path(), "ballplay");
+    let (_dir, out) = ingested("ballplay");
+    let out = out.to_str().unwrap().to_string();
     let stdout = ok(&["build-stg", "--out", &out]);
     assert!(stdout.contains("built "), "{stdout}");
     let lib = table::load_library(Path::new(&out)).unwrap();
@@ -97,8 +84,8 @@ fn paper_direction_edges_are_argmax_connections_with_eq20_counts() {
 
 #[test]
 fn per_target_mode_gives_each_frame_one_edge_per_other_skill() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = ingest(dir.path(), "ballplay");
+    let (_dir, out) = ingested("ballplay");
+    let out = out.to_str().unwrap().to_string();
     ok(&[
         "build-stg",
         "--out",
@@ -130,8 +117,8 @@ fn per_target_mode_gives_each_frame_one_edge_per_other_skill() {
 
 #[test]
 fn outputs_are_deterministic_and_parahome_is_refused() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = ingest(dir.path(), "ballplay");
+    let (dir, out) = ingested("ballplay");
+    let out = out.to_str().unwrap().to_string();
     ok(&["build-stg", "--out", &out, "-q", "--threads", "2"]);
     let a = std::fs::read(Path::new(&out).join("stg_edges.parquet")).unwrap();
     ok(&["build-stg", "--out", &out, "-q", "--threads", "2"]);

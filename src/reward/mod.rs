@@ -485,7 +485,13 @@ pub fn apply_alignment(s: &State, yaw: f64, pivot: [f64; 2], to: [f64; 2]) -> St
 /// Kinematic similarity S_k(s_A, s_B) = r_b r_o r_rel (Eq. 19) with `b`
 /// aligned onto `a` first; contacts are not compared.
 pub fn similarity(a: &State, b: &State, sk: Skeleton, w: &Weights, align: Align) -> f64 {
-    let b = align_to(a, b, align);
+    // The STF connection (Eq. 6) compares without alignment once per candidate
+    // frame: skip the copy of the whole state there.
+    let b = if align.xy || align.yaw {
+        std::borrow::Cow::Owned(align_to(a, b, align))
+    } else {
+        std::borrow::Cow::Borrowed(b)
+    };
     let e = errors(&b, a, sk);
     body_factor(&e, w) * object_factor(&e, w) * (-w.rel * e.rel).exp()
 }

@@ -99,10 +99,9 @@ fn batch(
     let mut classes = Vec::with_capacity(n);
     for &(clip, t) in idx {
         w.extend(he::window(&feats[clip], t, k, c));
-        cur.extend_from_slice(feats[clip][t].as_ref().expect("sample frames are present"));
-        if let Some(next) = feats[clip].get(t + 1).and_then(|f| f.as_ref()) {
-            tgt.extend_from_slice(next);
-        }
+        // `samples` only lists t where frames t and t + 1 are both present.
+        cur.extend_from_slice(feats[clip][t].as_ref().expect("sample frame present"));
+        tgt.extend_from_slice(feats[clip][t + 1].as_ref().expect("next frame present"));
         classes.push(lib.clips[clip].class as u32);
     }
     Ok(Batch {
