@@ -378,7 +378,8 @@ pub fn perturb<R: Rng>(s: &State, eps: &Eps, noise: Noise, rng: &mut R) -> State
         o.root_linvel[i] = (s.root_linvel[i] as f64 + dv[i]) as f32;
         o.root_angvel[i] = (s.root_angvel[i] as f64 + dw[i]) as f32;
     }
-    // Bodies follow the root rigidly (no forward kinematics yet).
+    // Bodies follow the root rigidly; with the humanoid model the sampler
+    // then recomputes them by forward kinematics (refresh_bodies).
     for (b, v) in o
         .body_pos
         .chunks_exact_mut(3)

@@ -46,7 +46,7 @@ pub fn columns() -> Vec<ColumnSpec> {
         ColumnSpec::new("root_angvel", f32_fixed(3), true, "start: root angular velocity, rad/s (frame as in frames.parquet)"),
         ColumnSpec::new("joint_rot", f32_list(), true, "start: [J*3] joint exp-maps, rad"),
         ColumnSpec::new("joint_vel", f32_list(), true, "start: [J*3] joint exp-map velocities, rad/s"),
-        ColumnSpec::new("body_pos", f32_list(), true, "start: [B*3] body world positions, m (moved rigidly with the root under noise; no forward kinematics)"),
+        ColumnSpec::new("body_pos", f32_list(), true, "start: [B*3] body world positions, m (under noise: stored positions plus the forward-kinematics change, or rigid with the root when sample-stf.fk = false)"),
         ColumnSpec::new("body_vel", f32_list(), true, "start: [B*3] body linear velocities, m/s"),
         ColumnSpec::new("obj_pos", f32_list(), true, "start: [O*3] object positions, m"),
         ColumnSpec::new("obj_rot", f32_list(), true, "start: [O*4] object rotations, unit quaternions (x, y, z, w)"),
