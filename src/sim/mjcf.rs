@@ -98,6 +98,51 @@ impl Model {
         Ok(Model { bodies })
     }
 
+    /// A copy without the bodies for which `drop` is true, nor their
+    /// descendants (for example the fingers, for a lighter model).
+    pub fn without(&self, drop: impl Fn(&Body) -> bool) -> Model {
+        let mut new_index = vec![None; self.bodies.len()];
+        let mut bodies = Vec::new();
+        for (i, b) in self.bodies.iter().enumerate() {
+            let parent = match b.parent {
+                None => None,
+                Some(p) => match new_index[p] {
+                    None => continue,
+                    some => some,
+                },
+            };
+            if drop(b) {
+                continue;
+            }
+            new_index[i] = Some(bodies.len());
+            bodies.push(Body {
+                parent,
+                ..b.clone()
+            });
+        }
+        Model { bodies }
+    }
+
+    /// The model for a skeleton from the data root's `assets/mjcf`, checked
+    /// against the skeleton's body names and order.
+    pub fn for_skeleton(
+        data_root: &Path,
+        skeleton: crate::motion::layout::Skeleton,
+    ) -> Result<Model> {
+        let path = data_root
+            .join("assets/mjcf")
+            .join(format!("{}.xml", skeleton.name()));
+        let m = Model::load(&path)?;
+        if m.names() != skeleton.body_names() {
+            bail!(
+                "{}: body names or order differ from the {} skeleton",
+                path.display(),
+                skeleton
+            );
+        }
+        Ok(m)
+    }
+
     /// Body names in order.
     pub fn names(&self) -> Vec<&str> {
         self.bodies.iter().map(|b| b.name.as_str()).collect()

@@ -1,4 +1,12 @@
-//! The simulated humanoid. So far: the MJCF model ([`mjcf`]); the rapier3d
-//! world comes with the simulation issue.
+//! The simulated humanoid: the MJCF model ([`mjcf`]), one rapier3d world
+//! ([`world`]), its objects ([`objects`]) and a vectorised environment of
+//! independent worlds stepped in parallel ([`vec_env`]).
 
 pub mod mjcf;
+pub mod objects;
+pub mod rot;
+pub mod vec_env;
+pub mod world;
+
+pub use objects::ObjectSpec;
+pub use world::{ContactReport, SimOptions, World};

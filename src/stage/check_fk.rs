@@ -1,5 +1,7 @@
-//! `skillaug check-fk`: forward kinematics of the MJCF humanoid with exp-map
-//! joints (reference §1.4) against the body positions stored in the clips.
+//! `skillaug check-fk`: every frame of every selected clip is set into the
+//! rapier3d world ([`crate::sim::World::set_state`]) and the body positions
+//! read back ([`crate::sim::World::get_state`]) are compared with the
+//! positions stored in the clip. Joints are exp-maps (reference §1.4).
 //! Mean and max error per clip; ParaHome should agree to a few millimetres,
 //! BallPlay and Locomotion to a few centimetres (the capture skeleton's limb
 //! lengths differ from the model's).
@@ -7,8 +9,9 @@
 use super::ingest::{clip_set, ingest_clip, IngestConfig};
 use super::Common;
 use crate::dataset;
-use crate::sim::mjcf::{forward_kinematics, Model};
-use anyhow::{bail, Context, Result};
+use crate::sim::mjcf::Model;
+use crate::sim::{SimOptions, World};
+use anyhow::{Context, Result};
 use rayon::prelude::*;
 
 /// FK error of one clip, m.
@@ -35,45 +38,53 @@ pub fn errors(common: &Common) -> Result<Vec<FkError>> {
         .map(|src| ingest_clip(src, &set, &cfg).with_context(|| format!("{}", src.path.display())))
         .collect::<Result<Vec<_>>>()?;
     let mut models: Vec<(String, Model)> = Vec::new();
-    let mut out = Vec::new();
     for c in &clips {
         let sk = c.layout.skeleton();
         if !models.iter().any(|(n, _)| n == sk.name()) {
-            let path = root.join("assets/mjcf").join(format!("{}.xml", sk.name()));
-            let m = Model::load(&path)?;
-            if m.names() != sk.body_names() {
-                bail!(
-                    "{}: body names or order differ from the {} skeleton",
-                    path.display(),
-                    sk
-                );
-            }
-            models.push((sk.name().to_string(), m));
+            models.push((sk.name().to_string(), Model::for_skeleton(&root, sk)?));
         }
-        let m = &models.iter().find(|(n, _)| n == sk.name()).unwrap().1;
-        let f = &c.frames;
-        let (mut sum, mut max, mut n, mut frames) = (0.0f64, 0.0f64, 0usize, 0usize);
-        for i in 0..f.frames {
-            let Some(s) = f.state(i) else { continue };
-            let p = forward_kinematics(m, s.root_pos, s.root_rot, &s.joint_rot);
-            for (a, b) in p.chunks_exact(3).zip(s.body_pos.chunks_exact(3)) {
-                let d = ((a[0] - b[0]) as f64)
-                    .hypot((a[1] - b[1]) as f64)
-                    .hypot((a[2] - b[2]) as f64);
-                sum += d;
-                max = max.max(d);
-                n += 1;
-            }
-            frames += 1;
-        }
-        out.push(FkError {
-            name: c.src.name.clone(),
-            frames,
-            mean: sum / n.max(1) as f64,
-            max,
-        });
     }
-    Ok(out)
+    clips
+        .par_iter()
+        .map(|c| {
+            let sk = c.layout.skeleton();
+            let m = &models.iter().find(|(n, _)| n == sk.name()).unwrap().1;
+            // the humanoid alone: objects play no part in body positions
+            let opts = SimOptions {
+                angvel_frame: cfg.angvel_frame,
+                ..SimOptions::for_fps(c.fps)
+            };
+            let mut world = World::new(m, &[], &opts)?;
+            let f = &c.frames;
+            let (mut sum, mut max, mut n, mut frames) = (0.0f64, 0.0f64, 0usize, 0usize);
+            for i in 0..f.frames {
+                let Some(mut s) = f.state(i) else { continue };
+                s.obj_pos.clear();
+                s.obj_rot.clear();
+                s.obj_linvel.clear();
+                s.obj_angvel.clear();
+                world
+                    .set_state(&s)
+                    .with_context(|| format!("{} frame {i}", c.src.name))?;
+                let p = world.get_state().body_pos;
+                for (a, b) in p.chunks_exact(3).zip(s.body_pos.chunks_exact(3)) {
+                    let d = ((a[0] - b[0]) as f64)
+                        .hypot((a[1] - b[1]) as f64)
+                        .hypot((a[2] - b[2]) as f64);
+                    sum += d;
+                    max = max.max(d);
+                    n += 1;
+                }
+                frames += 1;
+            }
+            Ok(FkError {
+                name: c.src.name.clone(),
+                frames,
+                mean: sum / n.max(1) as f64,
+                max,
+            })
+        })
+        .collect()
 }
 
 /// Run the command: print the table.

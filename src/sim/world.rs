@@ -1,0 +1,822 @@
+//! One simulated world: the MJCF humanoid, a ground plane and the task's
+//! objects, in rapier3d 0.36 (reference §2).
+//!
+//! **Model.** Every body of the MJCF becomes a dynamic rigid body whose frame
+//! is the MJCF body frame; its geoms (capsules from `fromto`, spheres, boxes)
+//! (and a cylinder from `fromto` in the ParaHome head) are its colliders, with the geom density (`density=""` and absent: 1000,
+//! MuJoCo's default; a negative box half-extent is taken as its absolute
+//! value). Each body's three hinges become one spherical *impulse* joint to
+//! its parent (impulse joints measured about 100x faster than multibody
+//! joints at this size), anchored at the child's origin with identity joint
+//! frames, so the joint's relative rotation is the body's local rotation and
+//! its coordinates are the exp-map triples of the data (reference §1.4).
+//!
+//! **Departures from the MJCF**, needed for impulse joints to be stable with
+//! the model's extreme mass ratios (docs/measured-notes.md; recorded in
+//! [`SimOptions`] and so in every resolved config):
+//! the MJCF joint armature (0.02) is added as principal inertia of every
+//! non-root body, and non-hand bodies weigh at least `min_mass` (0.5 kg:
+//! this changes only the 5.6 g Chest sphere and the toes).
+//!
+//! **PD drives** (reference §2.3): implicit, solved by the engine
+//! (`MotorModel::ForceBased` with the MJCF stiffness/damping as kp/kd,
+//! torque = kp (target - q) - kd dq/dt per axis, no force limit). A target
+//! triple `e` (target = pi * action) is converted to the three angles a
+//! spherical joint's motors measure, `2 asin(exp(e).imag[i])`.
+//!
+//! **Collisions.** Self-collision is on except between a body and its
+//! parent (`contacts_enabled(false)` on the joint); objects collide with
+//! everything; the ground is the static half-space z <= 0
+//! (restitution 0.8, friction 1.0, reference §2.4). Gravity is -z (the
+//! BallPlay model is built y-up; the data's root rotation carries it into
+//! the z-up world).
+//!
+//! **State.** [`World::set_state`] / [`World::get_state`] use the layout of
+//! the ingested frames ([`State`]): root pose and velocity, joint exp-maps
+//! and their rates, body positions and velocities (of the body frame
+//! origins), object poses and velocities. Setting places every body by
+//! forward kinematics of the joint triples (the stored capture positions
+//! are not used: the model's limb lengths differ) and derives body
+//! velocities from the root and joint rates through the exp-map Jacobian
+//! ([`super::rot`]). Root and object angular velocities are read and written
+//! in the frame the tables use (`angvel_frame`, body frame by default: the
+//! reference loader's rule, reference §1.8).
+
+use super::mjcf::Model;
+use super::objects::ObjectSpec;
+use super::rot;
+use crate::motion::clip::AngvelFrame;
+use crate::motion::state::State;
+use crate::reward::Contacts;
+use anyhow::{bail, Result};
+use rapier3d::math::{Pose, Rotation, Vector};
+use rapier3d::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Physics settings (recipe table `[sim]` in the stages that simulate).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimOptions {
+    /// Physics rate, Hz (120 BallPlay/Locomotion, 60 ParaHome).
+    pub physics_hz: f64,
+    /// Physics steps per policy step (2: a 60 Hz policy; 30 Hz for ParaHome).
+    pub substeps: usize,
+    /// rapier solver iterations (its internal substeps) per physics step.
+    pub solver_iterations: usize,
+    /// rapier internal PGS iterations.
+    pub pgs_iterations: usize,
+    /// rapier internal stabilisation (position correction) iterations.
+    pub stabilization_iterations: usize,
+    /// rapier's contact recycling (reuse a pair's contact points while it
+    /// moved less than 5 cm; rapier's default, faster).
+    pub contact_recycling: bool,
+    /// Add the MJCF joint armature as principal inertia of non-root bodies.
+    pub armature_inertia: bool,
+    /// Minimum mass of non-hand bodies, kg (0 disables).
+    pub min_mass: f32,
+    /// Minimum mass of hand (wrist and finger) bodies, kg (0 disables; see
+    /// the module doc).
+    pub hand_min_mass: f32,
+    /// Collisions between non-adjacent bodies of the humanoid.
+    pub self_collision: bool,
+    /// Friction of the humanoid and the ground.
+    pub friction: f32,
+    /// Ground restitution.
+    pub ground_restitution: f32,
+    /// Natural frequency of contacts with the ground, Hz (rapier's default
+    /// 60; 120 halves the sinking of a falling humanoid).
+    pub ground_contact_hz: f32,
+    /// Largest velocity used to push penetrating bodies apart, m/s
+    /// (PhysX `max_depenetration_velocity` 10, reference §2.5).
+    pub max_depenetration_velocity: f32,
+    /// Angular damping of humanoid bodies (reference asset option 0.01).
+    pub angular_damping: f32,
+    /// Frame of root and object angular velocities in [`State`].
+    pub angvel_frame: AngvelFrame,
+    /// Contact prediction distance, m (rapier's default 0.02): contacts
+    /// are created this far ahead. Limbs move up to 20 m/s (17 cm per
+    /// physics step) under random actions; with 0.02 a limb's contact came a
+    /// step late and forearms, toes and fingers sank up to 6 cm into the
+    /// ground; with 0.1 (and the stiffer ground) under 2 cm.
+    pub prediction_distance: f32,
+}
+
+impl Default for SimOptions {
+    fn default() -> Self {
+        SimOptions {
+            physics_hz: 120.0,
+            substeps: 2,
+            solver_iterations: 4,
+            pgs_iterations: 4,
+            stabilization_iterations: 1,
+            contact_recycling: true,
+            armature_inertia: true,
+            min_mass: 0.5,
+            hand_min_mass: 0.05,
+            self_collision: true,
+            friction: 1.0,
+            ground_restitution: 0.8,
+            ground_contact_hz: 120.0,
+            max_depenetration_velocity: 10.0,
+            angular_damping: 0.01,
+            angvel_frame: AngvelFrame::Body,
+            prediction_distance: 0.1,
+        }
+    }
+}
+
+impl SimOptions {
+    /// Defaults for a data rate: 120 Hz physics and 2 substeps for 60 fps
+    /// data, 60 Hz and 2 substeps for ParaHome's 30 fps.
+    pub fn for_fps(fps: f64) -> SimOptions {
+        SimOptions {
+            physics_hz: 2.0 * fps,
+            ..SimOptions::default()
+        }
+    }
+
+    /// Policy step, s.
+    pub fn policy_dt(&self) -> f32 {
+        (self.substeps as f64 / self.physics_hz) as f32
+    }
+}
+
+/// What a collider belongs to (stored in its `user_data`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Part {
+    /// A humanoid body.
+    Body(usize),
+    /// An object.
+    Object(usize),
+    /// The ground.
+    Ground,
+}
+
+const OBJECT_TAG: u128 = 1 << 32;
+const GROUND_TAG: u128 = 1 << 33;
+
+impl Part {
+    fn tag(self) -> u128 {
+        match self {
+            Part::Body(i) => i as u128,
+            Part::Object(k) => OBJECT_TAG | k as u128,
+            Part::Ground => GROUND_TAG,
+        }
+    }
+
+    fn of_tag(t: u128) -> Part {
+        if t & GROUND_TAG != 0 {
+            Part::Ground
+        } else if t & OBJECT_TAG != 0 {
+            Part::Object((t & 0xffff_ffff) as usize)
+        } else {
+            Part::Body(t as usize)
+        }
+    }
+}
+
+/// Contact forces and indicators after a step.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ContactReport {
+    /// Net contact force on each humanoid body, world frame, N.
+    pub body_force: Vec<[f32; 3]>,
+    /// Net contact force on each object, N.
+    pub object_force: Vec<[f32; 3]>,
+    /// Object `k` touches a hand (wrist or finger) body.
+    pub object_hands: Vec<bool>,
+    /// Object `k` touches a non-hand humanoid body.
+    pub object_body: Vec<bool>,
+    /// A hand touches a non-hand body of the humanoid.
+    pub body_hands: bool,
+}
+
+impl ContactReport {
+    /// The reward's contact indicators (reference §4.2, paper Eq. 16):
+    /// object 0 against hands and body, hands against body, and whether any
+    /// of `penalty_bodies` feels a force component of at least 0.1 N.
+    pub fn reward_contacts(&self, penalty_bodies: &[usize]) -> Contacts {
+        Contacts {
+            ball_hands: self.object_hands.first().copied().unwrap_or(false),
+            ball_body: self.object_body.first().copied().unwrap_or(false),
+            body_hands: self.body_hands,
+            penalty_bodies: penalty_bodies
+                .iter()
+                .any(|&b| self.body_force[b].iter().any(|f| f.abs() >= 0.1)),
+        }
+    }
+}
+
+/// The humanoid's fixed description, shared by every world built from it.
+#[derive(Clone, Debug)]
+struct Skeleton {
+    parents: Vec<Option<usize>>,
+    offsets: Vec<Vector>,
+    /// kp, kd of each joint's three axes (joint j drives body j + 1).
+    gains: Vec<[[f32; 2]; 3]>,
+    hand: Vec<bool>,
+}
+
+/// One world.
+pub struct World {
+    pw: PhysicsWorld,
+    opts: SimOptions,
+    sk: Skeleton,
+    bodies: Vec<RigidBodyHandle>,
+    joints: Vec<ImpulseJointHandle>,
+    objects: Vec<RigidBodyHandle>,
+    /// Motor targets currently set (exp-map triples).
+    targets: Vec<f32>,
+}
+
+fn v3(a: [f64; 3]) -> Vector {
+    Vector::new(a[0] as f32, a[1] as f32, a[2] as f32)
+}
+
+fn arr3(v: Vector) -> [f32; 3] {
+    [v.x, v.y, v.z]
+}
+
+fn q4(q: Rotation) -> [f32; 4] {
+    [q.x, q.y, q.z, q.w]
+}
+
+fn rot_of(a: &[f32]) -> Rotation {
+    Rotation::from_xyzw(a[0], a[1], a[2], a[3]).normalize()
+}
+
+fn vec_of(a: &[f32]) -> Vector {
+    Vector::new(a[0], a[1], a[2])
+}
+
+/// Bodies that belong to a hand: the wrists and everything below them.
+pub fn hand_bodies(model: &Model) -> Vec<bool> {
+    let mut hand = vec![false; model.bodies.len()];
+    for (i, b) in model.bodies.iter().enumerate() {
+        let own = b.name.contains("Wrist");
+        hand[i] = own || b.parent.is_some_and(|p| hand[p]);
+    }
+    hand
+}
+
+fn geom_collider(g: &super::mjcf::Geom, body: &str) -> Result<ColliderBuilder> {
+    let density = g.density.unwrap_or(1000.0) as f32;
+    let pose = |pos: [f64; 3]| {
+        let r = match g.quat {
+            Some([w, x, y, z]) => Rotation::from_xyzw(x as f32, y as f32, z as f32, w as f32),
+            None => Rotation::IDENTITY,
+        };
+        Pose::from_parts(v3(pos), r.normalize())
+    };
+    let c = match g.kind.as_str() {
+        "capsule" => {
+            let r = *g.size.first().unwrap_or(&0.0) as f32;
+            let Some(ft) = g.fromto else {
+                bail!("body `{body}`: a capsule without `fromto` is not supported");
+            };
+            ColliderBuilder::capsule_from_endpoints(
+                v3([ft[0], ft[1], ft[2]]),
+                v3([ft[3], ft[4], ft[5]]),
+                r,
+            )
+        }
+        "cylinder" => {
+            let r = *g.size.first().unwrap_or(&0.0) as f32;
+            let Some(ft) = g.fromto else {
+                bail!("body `{body}`: a cylinder without `fromto` is not supported");
+            };
+            let (a, b) = (v3([ft[0], ft[1], ft[2]]), v3([ft[3], ft[4], ft[5]]));
+            let d = b - a;
+            // rapier's cylinder lies along y
+            let r_axis = Rotation::from_rotation_arc(Vector::Y, d.normalize());
+            ColliderBuilder::cylinder(0.5 * d.length(), r)
+                .position(Pose::from_parts(0.5 * (a + b), r_axis))
+        }
+        "sphere" => {
+            ColliderBuilder::ball(*g.size.first().unwrap_or(&0.0) as f32).position(pose(g.pos))
+        }
+        "box" => {
+            if g.size.len() != 3 {
+                bail!("body `{body}`: a box needs three half-sizes");
+            }
+            ColliderBuilder::cuboid(
+                g.size[0].abs() as f32,
+                g.size[1].abs() as f32,
+                g.size[2].abs() as f32,
+            )
+            .position(pose(g.pos))
+        }
+        other => bail!("body `{body}`: geom type `{other}` is not supported"),
+    };
+    Ok(c.density(density))
+}
+
+impl World {
+    /// Build a world from a humanoid model and objects.
+    pub fn new(model: &Model, objects: &[ObjectSpec], opts: &SimOptions) -> Result<World> {
+        if model.bodies.is_empty() || model.bodies[0].parent.is_some() {
+            bail!("the humanoid model has no root body");
+        }
+        let mut pw = PhysicsWorld::new();
+        pw.gravity = Vector::new(0.0, 0.0, -9.81);
+        let ip = &mut pw.integration_parameters;
+        ip.set_inv_dt(opts.physics_hz as f32);
+        ip.num_solver_iterations = opts.solver_iterations.max(1);
+        ip.num_internal_pgs_iterations = opts.pgs_iterations.max(1);
+        ip.num_internal_stabilization_iterations = opts.stabilization_iterations;
+        ip.contact_recycling = opts.contact_recycling;
+        ip.normalized_prediction_distance = opts.prediction_distance;
+        ip.static_contact_softness.natural_frequency = opts.ground_contact_hz;
+        ip.normalized_max_corrective_velocity = opts.max_depenetration_velocity;
+
+        let hand = hand_bodies(model);
+        let n = model.bodies.len();
+        let mut sk = Skeleton {
+            parents: model.bodies.iter().map(|b| b.parent).collect(),
+            offsets: model.bodies.iter().map(|b| v3(b.pos)).collect(),
+            gains: Vec::with_capacity(n - 1),
+            hand,
+        };
+
+        // Bodies at the model's rest pose (body frames only offset).
+        let mut world_pos = vec![Vector::ZERO; n];
+        let mut bodies = Vec::with_capacity(n);
+        for (i, b) in model.bodies.iter().enumerate() {
+            if let Some(p) = b.parent {
+                world_pos[i] = world_pos[p] + sk.offsets[i];
+            }
+            let rb = RigidBodyBuilder::dynamic()
+                .translation(world_pos[i] + Vector::new(0.0, 0.0, 1.0))
+                .angular_damping(opts.angular_damping)
+                .can_sleep(false)
+                .user_data(i as u128);
+            let h = pw.bodies.insert(rb);
+            for g in &b.geoms {
+                let c = geom_collider(g, &b.name)?
+                    .friction(opts.friction)
+                    .user_data(Part::Body(i).tag());
+                pw.colliders.insert_with_parent(c, h, &mut pw.bodies);
+            }
+            // model departures (module doc)
+            pw.bodies[h].recompute_mass_properties_from_colliders(&pw.colliders);
+            let mass = pw.bodies[h].mass();
+            let com = pw.bodies[h].local_center_of_mass();
+            let armature = b.hinges.first().map_or(0.0, |j| j.armature) as f32;
+            let min_mass = if sk.hand[i] {
+                opts.hand_min_mass
+            } else {
+                opts.min_mass
+            };
+            let extra_mass = (min_mass - mass).max(0.0);
+            let extra_inertia = if opts.armature_inertia && i > 0 {
+                armature
+            } else {
+                0.0
+            };
+            if extra_mass > 0.0 || extra_inertia > 0.0 {
+                pw.bodies[h].set_additional_mass_properties(
+                    MassProperties::new(com, extra_mass, Vector::splat(extra_inertia)),
+                    false,
+                );
+            }
+            bodies.push(h);
+        }
+        pw.bodies
+            .iter_mut()
+            .for_each(|(_, b)| b.recompute_mass_properties_from_colliders(&pw.colliders));
+
+        // Joints.
+        let mut joints = Vec::with_capacity(n - 1);
+        for (i, b) in model.bodies.iter().enumerate().skip(1) {
+            if b.hinges.len() != 3 {
+                bail!(
+                    "body `{}` has {} hinges; every non-root body needs three (x, y, z)",
+                    b.name,
+                    b.hinges.len()
+                );
+            }
+            let mut g = [[0f32; 2]; 3];
+            for (a, h) in b.hinges.iter().enumerate() {
+                let mut want = [0.0; 3];
+                want[a] = 1.0;
+                if h.axis != want {
+                    bail!(
+                        "joint `{}` has axis {:?}; the three hinges must be x, y, z in order",
+                        h.name,
+                        h.axis
+                    );
+                }
+                g[a] = [h.stiffness as f32, h.damping as f32];
+            }
+            let mut jb = SphericalJointBuilder::new()
+                .local_anchor1(sk.offsets[i])
+                .local_anchor2(Vector::ZERO)
+                .contacts_enabled(false);
+            for (a, axis) in [JointAxis::AngX, JointAxis::AngY, JointAxis::AngZ]
+                .into_iter()
+                .enumerate()
+            {
+                jb = jb
+                    .motor_model(axis, MotorModel::ForceBased)
+                    .motor_position(axis, 0.0, g[a][0], g[a][1]);
+            }
+            sk.gains.push(g);
+            let parent = bodies[b.parent.expect("non-root body has a parent")];
+            joints.push(pw.impulse_joints.insert(parent, bodies[i], jb, true));
+        }
+
+        if !opts.self_collision {
+            // humanoid colliders: member of group 1, collide with everything but group 1
+            let groups = InteractionGroups::new(
+                Group::GROUP_1,
+                Group::ALL ^ Group::GROUP_1,
+                InteractionTestMode::And,
+            );
+            for (_, c) in pw.colliders.iter_mut() {
+                c.set_collision_groups(groups);
+            }
+        }
+
+        // Ground: the half-space z <= 0.
+        let ground = pw.bodies.insert(RigidBodyBuilder::fixed());
+        pw.colliders.insert_with_parent(
+            ColliderBuilder::halfspace(rapier3d::na::Unit::new_unchecked(Vector::Z))
+                .friction(opts.friction)
+                .restitution(opts.ground_restitution)
+                .user_data(Part::Ground.tag()),
+            ground,
+            &mut pw.bodies,
+        );
+
+        // Objects, parked beside the origin until a state is set.
+        let mut objs = Vec::with_capacity(objects.len());
+        for (k, o) in objects.iter().enumerate() {
+            let h = pw.bodies.insert(
+                RigidBodyBuilder::dynamic()
+                    .translation(Vector::new(2.0 + k as f32, 0.0, 1.0))
+                    .linear_damping(o.damping[0])
+                    .angular_damping(o.damping[1])
+                    .can_sleep(false),
+            );
+            pw.colliders.insert_with_parent(
+                ColliderBuilder::new(o.shape.clone())
+                    .density(o.density)
+                    .restitution(o.restitution)
+                    .friction(o.friction)
+                    .user_data(Part::Object(k).tag()),
+                h,
+                &mut pw.bodies,
+            );
+            objs.push(h);
+        }
+
+        Ok(World {
+            pw,
+            opts: opts.clone(),
+            targets: vec![0.0; 3 * (n - 1)],
+            sk,
+            bodies,
+            joints,
+            objects: objs,
+        })
+    }
+
+    /// Number of humanoid bodies.
+    pub fn n_bodies(&self) -> usize {
+        self.bodies.len()
+    }
+
+    /// Number of three-DoF joints (= action triples).
+    pub fn n_joints(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// Number of objects.
+    pub fn n_objects(&self) -> usize {
+        self.objects.len()
+    }
+
+    /// Settings.
+    pub fn options(&self) -> &SimOptions {
+        &self.opts
+    }
+
+    /// Mass of each humanoid body, kg (after the model departures).
+    pub fn body_masses(&self) -> Vec<f32> {
+        self.bodies
+            .iter()
+            .map(|&h| self.pw.bodies[h].mass())
+            .collect()
+    }
+
+    /// Mass of object `k`, kg.
+    pub fn object_mass(&self, k: usize) -> f32 {
+        self.pw.bodies[self.objects[k]].mass()
+    }
+
+    /// Set the motor targets: one exp-map triple per joint.
+    pub fn set_joint_targets(&mut self, targets: &[f32]) {
+        assert_eq!(
+            targets.len(),
+            self.targets.len(),
+            "one target triple per joint"
+        );
+        for (j, (&h, t)) in self.joints.iter().zip(targets.chunks_exact(3)).enumerate() {
+            let old = &mut self.targets[3 * j..3 * j + 3];
+            if old == t {
+                continue;
+            }
+            old.copy_from_slice(t);
+            let angles = rot::motor_angles(vec_of(t));
+            let g = self.sk.gains[j];
+            let joint = self
+                .pw
+                .impulse_joints
+                .get_mut(h, false)
+                .expect("joint handle");
+            for (a, axis) in [JointAxis::AngX, JointAxis::AngY, JointAxis::AngZ]
+                .into_iter()
+                .enumerate()
+            {
+                joint
+                    .data
+                    .set_motor_position(axis, angles[a], g[a][0], g[a][1]);
+            }
+        }
+    }
+
+    /// Set the targets from a policy action: target = pi * clamp(a, -1, 1)
+    /// (reference §2.3).
+    pub fn apply_action(&mut self, action: &[f32]) {
+        let t: Vec<f32> = action
+            .iter()
+            .map(|a| std::f32::consts::PI * a.clamp(-1.0, 1.0))
+            .collect();
+        self.set_joint_targets(&t);
+    }
+
+    /// Current motor targets.
+    pub fn joint_targets(&self) -> &[f32] {
+        &self.targets
+    }
+
+    /// One physics step.
+    pub fn step_physics(&mut self) {
+        self.pw.step();
+    }
+
+    /// One policy step: `substeps` physics steps with the targets held.
+    pub fn step(&mut self) {
+        for _ in 0..self.opts.substeps {
+            self.pw.step();
+        }
+    }
+
+    fn world_angvel(&self, rot: Rotation, w: Vector) -> Vector {
+        match self.opts.angvel_frame {
+            AngvelFrame::World => w,
+            AngvelFrame::Body => rot * w,
+        }
+    }
+
+    fn state_angvel(&self, rot: Rotation, w: Vector) -> Vector {
+        match self.opts.angvel_frame {
+            AngvelFrame::World => w,
+            AngvelFrame::Body => rot.inverse() * w,
+        }
+    }
+
+    fn check_widths(&self, s: &State) -> Result<()> {
+        let (j, o) = (3 * self.n_joints(), self.n_objects());
+        let widths = [
+            ("joint_rot", s.joint_rot.len(), j),
+            ("joint_vel", s.joint_vel.len(), j),
+            ("obj_pos", s.obj_pos.len(), 3 * o),
+            ("obj_rot", s.obj_rot.len(), 4 * o),
+            ("obj_linvel", s.obj_linvel.len(), 3 * o),
+            ("obj_angvel", s.obj_angvel.len(), 3 * o),
+        ];
+        for (name, got, want) in widths {
+            if got != want {
+                bail!("state field `{name}` has {got} values; this world needs {want}");
+            }
+        }
+        Ok(())
+    }
+
+    /// Place the humanoid and objects in state `s` (see the module doc).
+    /// Joint motor targets are left as they are.
+    pub fn set_state(&mut self, s: &State) -> Result<()> {
+        self.check_widths(s)?;
+        let n = self.n_bodies();
+        let mut rot = vec![Rotation::IDENTITY; n];
+        let mut pos = vec![Vector::ZERO; n];
+        let mut w = vec![Vector::ZERO; n];
+        let mut v = vec![Vector::ZERO; n];
+        rot[0] = rot_of(&s.root_rot);
+        pos[0] = vec_of(&s.root_pos);
+        w[0] = self.world_angvel(rot[0], vec_of(&s.root_angvel));
+        v[0] = vec_of(&s.root_linvel);
+        for i in 1..n {
+            let p = self.sk.parents[i].expect("parent");
+            let e = vec_of(&s.joint_rot[3 * (i - 1)..]);
+            let de = vec_of(&s.joint_vel[3 * (i - 1)..]);
+            rot[i] = (rot[p] * rot::from_expmap(e)).normalize();
+            pos[i] = pos[p] + rot[p] * self.sk.offsets[i];
+            w[i] = w[p] + rot[p] * rot::jl_mul(e, de);
+            v[i] = v[p] + w[p].cross(pos[i] - pos[p]);
+        }
+        for i in 0..n {
+            let b = &mut self.pw.bodies[self.bodies[i]];
+            b.set_position(Pose::from_parts(pos[i], rot[i]), true);
+            let com = pos[i] + rot[i] * b.local_center_of_mass();
+            b.set_linvel(v[i] + w[i].cross(com - pos[i]), true);
+            b.set_angvel(w[i], true);
+        }
+        for k in 0..self.n_objects() {
+            let r = rot_of(&s.obj_rot[4 * k..]);
+            let p = vec_of(&s.obj_pos[3 * k..]);
+            let wk = self.world_angvel(r, vec_of(&s.obj_angvel[3 * k..]));
+            let b = &mut self.pw.bodies[self.objects[k]];
+            b.set_position(Pose::from_parts(p, r), true);
+            let com = p + r * b.local_center_of_mass();
+            b.set_linvel(vec_of(&s.obj_linvel[3 * k..]) + wk.cross(com - p), true);
+            b.set_angvel(wk, true);
+        }
+        // forget joint impulses of the previous episode (warm start)
+        for (_, j) in self.pw.impulse_joints.iter_mut() {
+            j.impulses = Default::default();
+        }
+        Ok(())
+    }
+
+    /// Hold the root body in place (fixed) or let it move (dynamic), for
+    /// drive tests and diagnostics.
+    pub fn pin_root(&mut self, pinned: bool) {
+        let t = if pinned {
+            RigidBodyType::Fixed
+        } else {
+            RigidBodyType::Dynamic
+        };
+        self.pw.bodies[self.bodies[0]].set_body_type(t, true);
+    }
+
+    /// The lowest point of any humanoid or object collider (z of the
+    /// bounding boxes), m, and what it belongs to: below 0 means
+    /// penetration into the ground.
+    pub fn lowest_point(&self) -> (f32, Part) {
+        self.pw
+            .colliders
+            .iter()
+            .map(|(_, c)| (c.compute_aabb().mins.z, Part::of_tag(c.user_data)))
+            .filter(|(_, p)| *p != Part::Ground)
+            .fold(
+                (f32::INFINITY, Part::Ground),
+                |a, b| if b.0 < a.0 { b } else { a },
+            )
+    }
+
+    /// The largest linear speed of any humanoid body's centre of mass or
+    /// object, m/s, and whether every body's pose and velocity is finite.
+    pub fn max_speed(&self) -> (f32, bool) {
+        let mut finite = true;
+        let mut max = 0f32;
+        for &h in self.bodies.iter().chain(&self.objects) {
+            let b = &self.pw.bodies[h];
+            let v = b.linvel();
+            finite &= v.is_finite() && b.angvel().is_finite() && b.translation().is_finite();
+            max = max.max(v.length());
+        }
+        (max, finite)
+    }
+
+    /// World rotation of body `i`.
+    pub fn body_rotation(&self, i: usize) -> [f32; 4] {
+        q4(*self.pw.bodies[self.bodies[i]].rotation())
+    }
+
+    /// World rotations `[B*4]` and angular velocities `[B*3]` of every body
+    /// (what the observation needs beyond [`State`]).
+    pub fn body_frames(&self, rot: &mut Vec<f32>, angvel: &mut Vec<f32>) {
+        rot.clear();
+        angvel.clear();
+        for &h in &self.bodies {
+            let b = &self.pw.bodies[h];
+            rot.extend_from_slice(&q4(*b.rotation()));
+            angvel.extend_from_slice(&arr3(b.angvel()));
+        }
+    }
+
+    /// The current state in the layout of the ingested frames. `contact` is
+    /// true when object 0 touches the humanoid.
+    pub fn get_state(&self) -> State {
+        let n = self.n_bodies();
+        let mut s = State {
+            joint_rot: Vec::with_capacity(3 * (n - 1)),
+            joint_vel: Vec::with_capacity(3 * (n - 1)),
+            body_pos: Vec::with_capacity(3 * n),
+            body_vel: Vec::with_capacity(3 * n),
+            ..State::default()
+        };
+        let frames: Vec<(Vector, Rotation, Vector, Vector)> = self
+            .bodies
+            .iter()
+            .map(|&h| {
+                let b = &self.pw.bodies[h];
+                let p = b.translation();
+                (p, *b.rotation(), b.velocity_at_point(p), b.angvel())
+            })
+            .collect();
+        let (p0, r0, v0, w0) = frames[0];
+        s.root_pos = arr3(p0);
+        s.root_rot = q4(r0);
+        s.root_rot_expmap = arr3(rot::to_expmap(r0));
+        s.root_linvel = arr3(v0);
+        s.root_angvel = arr3(self.state_angvel(r0, w0));
+        for i in 1..n {
+            let p = self.sk.parents[i].expect("parent");
+            let (_, rp, _, wp) = frames[p];
+            let (_, rc, _, wc) = frames[i];
+            let e = rot::to_expmap(rp.inverse() * rc);
+            let de = rot::jl_inv_mul(e, rp.inverse() * (wc - wp));
+            s.joint_rot.extend_from_slice(&arr3(e));
+            s.joint_vel.extend_from_slice(&arr3(de));
+        }
+        for &(p, _, v, _) in &frames {
+            s.body_pos.extend_from_slice(&arr3(p));
+            s.body_vel.extend_from_slice(&arr3(v));
+        }
+        for &h in &self.objects {
+            let b = &self.pw.bodies[h];
+            let p = b.translation();
+            let r = *b.rotation();
+            s.obj_pos.extend_from_slice(&arr3(p));
+            s.obj_rot.extend_from_slice(&q4(r));
+            s.obj_linvel
+                .extend_from_slice(&arr3(b.velocity_at_point(p)));
+            s.obj_angvel
+                .extend_from_slice(&arr3(self.state_angvel(r, b.angvel())));
+        }
+        if !self.objects.is_empty() {
+            let c = self.contacts();
+            s.contact = c.object_hands[0] || c.object_body[0];
+        }
+        s
+    }
+
+    /// Contact forces and indicators of the last physics step.
+    pub fn contacts(&self) -> ContactReport {
+        let n = self.n_bodies();
+        let no = self.n_objects();
+        let mut r = ContactReport {
+            body_force: vec![[0.0; 3]; n],
+            object_force: vec![[0.0; 3]; no],
+            object_hands: vec![false; no],
+            object_body: vec![false; no],
+            body_hands: false,
+        };
+        let inv_dt = self.pw.integration_parameters.inv_dt();
+        let colliders = &self.pw.colliders;
+        for pair in self.pw.narrow_phase.contact_pairs() {
+            if !pair.has_any_active_contact() {
+                continue;
+            }
+            let (Some(c1), Some(c2)) =
+                (colliders.get(pair.collider1), colliders.get(pair.collider2))
+            else {
+                continue;
+            };
+            let (a, b) = (Part::of_tag(c1.user_data), Part::of_tag(c2.user_data));
+            // the impulse pushes collider2 along the normal, collider1 against it
+            let f = pair.total_impulse() * inv_dt;
+            let mut add = |part: Part, f: Vector| match part {
+                Part::Body(i) => {
+                    let t = &mut r.body_force[i];
+                    *t = [t[0] + f.x, t[1] + f.y, t[2] + f.z];
+                }
+                Part::Object(k) => {
+                    let t = &mut r.object_force[k];
+                    *t = [t[0] + f.x, t[1] + f.y, t[2] + f.z];
+                }
+                Part::Ground => {}
+            };
+            add(a, -f);
+            add(b, f);
+            for (x, y) in [(a, b), (b, a)] {
+                match (x, y) {
+                    (Part::Object(k), Part::Body(i)) => {
+                        if self.sk.hand[i] {
+                            r.object_hands[k] = true;
+                        } else {
+                            r.object_body[k] = true;
+                        }
+                    }
+                    (Part::Body(i), Part::Body(j)) if self.sk.hand[i] && !self.sk.hand[j] => {
+                        r.body_hands = true;
+                    }
+                    _ => {}
+                }
+            }
+        }
+        r
+    }
+}

@@ -1,0 +1,182 @@
+//! The rapier3d world against the real clips and against physics: state
+//! round trips, PD tracking, ball restitution, stability under random
+//! actions (issue: the simulated humanoid).
+
+mod common;
+
+use common::*;
+use rand::{Rng, SeedableRng};
+use skillaug::motion::MotionLib;
+use skillaug::sim::mjcf::{forward_kinematics, Model};
+use skillaug::sim::rot;
+use skillaug::sim::vec_env::VecEnv;
+use skillaug::sim::{ObjectSpec, SimOptions, World};
+
+fn ballplay() -> (tempfile::TempDir, MotionLib, Model) {
+    let (dir, out) = ingested("ballplay");
+    let lib = skillaug::table::load_library(&out).unwrap();
+    let model = Model::for_skeleton(&data_root(), lib.skeleton).unwrap();
+    (dir, lib, model)
+}
+
+fn angle_between(a: &[f32], b: &[f32]) -> f32 {
+    let qa = rot::from_expmap(glam_v(a));
+    let qb = rot::from_expmap(glam_v(b));
+    rot::to_expmap(qa.inverse() * qb).length()
+}
+
+fn glam_v(a: &[f32]) -> rapier3d::math::Vector {
+    rapier3d::math::Vector::new(a[0], a[1], a[2])
+}
+
+#[test]
+fn setting_a_reference_frame_and_reading_it_back_round_trips() {
+    let (_d, lib, model) = ballplay();
+    let mut w = World::new(&model, &[ObjectSpec::ball()], &SimOptions::default()).unwrap();
+    for clip in 0..lib.clips.len() {
+        for frame in [1, 20, 60] {
+            let s = lib.state(clip, frame).unwrap();
+            w.set_state(&s).unwrap();
+            let g = w.get_state();
+            let close = |a: &[f32], b: &[f32], tol: f32, what: &str| {
+                for (k, (x, y)) in a.iter().zip(b).enumerate() {
+                    assert!(
+                        (x - y).abs() <= tol * (1.0 + y.abs()),
+                        "clip {clip} frame {frame} {what}[{k}]: {x} vs {y}"
+                    );
+                }
+            };
+            close(&g.root_pos, &s.root_pos, 1e-5, "root_pos");
+            close(&g.root_linvel, &s.root_linvel, 1e-3, "root_linvel");
+            close(&g.root_angvel, &s.root_angvel, 1e-3, "root_angvel");
+            for j in 0..lib.skeleton.n_joints() {
+                let e = angle_between(&g.joint_rot[3 * j..], &s.joint_rot[3 * j..]);
+                assert!(e < 1e-3, "clip {clip} frame {frame} joint {j}: {e} rad");
+            }
+            close(&g.joint_vel, &s.joint_vel, 2e-2, "joint_vel");
+            close(&g.obj_pos, &s.obj_pos, 1e-5, "obj_pos");
+            close(&g.obj_linvel, &s.obj_linvel, 1e-3, "obj_linvel");
+            // body positions are forward kinematics of the MJCF
+            let fk = forward_kinematics(&model, s.root_pos, s.root_rot, &s.joint_rot);
+            close(&g.body_pos, &fk, 1e-4, "body_pos");
+        }
+    }
+}
+
+#[test]
+fn pd_drives_track_a_reference_pose_with_the_root_held() {
+    // From the T-pose, the drives reach each clip's mid pose within 0.5 s.
+    let (_d, lib, model) = ballplay();
+    let opts = SimOptions::default();
+    for clip in 0..lib.clips.len() {
+        let mut w = World::new(&model, &[ObjectSpec::ball()], &opts).unwrap();
+        let target = lib.state(clip, lib.frames[clip].frames / 2).unwrap();
+        let mut start = target.clone();
+        start.root_pos[2] += 1.0; // the feet stay clear of the ground
+        start.root_linvel = [0.0; 3];
+        start.root_angvel = [0.0; 3];
+        start.joint_rot.iter_mut().for_each(|v| *v = 0.0);
+        start.joint_vel.iter_mut().for_each(|v| *v = 0.0);
+        start.obj_pos = vec![3.0, 3.0, 0.12];
+        w.set_state(&start).unwrap();
+        w.pin_root(true);
+        w.set_joint_targets(&target.joint_rot);
+        let steps = (0.5 * opts.physics_hz) as usize;
+        for _ in 0..steps {
+            w.step_physics();
+        }
+        let g = w.get_state();
+        let n = lib.skeleton.n_joints();
+        let mean = (0..n)
+            .map(|j| angle_between(&g.joint_rot[3 * j..], &target.joint_rot[3 * j..]))
+            .sum::<f32>()
+            / n as f32;
+        let deg = mean.to_degrees();
+        eprintln!(
+            "{}: mean joint error after 0.5 s {deg:.2} deg",
+            lib.clips[clip].name
+        );
+        assert!(deg < 3.0, "{}: {deg} deg", lib.clips[clip].name);
+    }
+}
+
+#[test]
+fn a_dropped_ball_rebounds_as_its_restitution_says() {
+    let model = Model::for_skeleton(
+        &data_root(),
+        skillaug::motion::layout::Skeleton::MocapHumanoid,
+    )
+    .unwrap();
+    let opts = SimOptions::default();
+    let mut w = World::new(&model, &[ObjectSpec::ball()], &opts).unwrap();
+    let mut s = w.get_state();
+    s.root_pos = [5.0, 5.0, 1.0]; // humanoid out of the way
+    s.obj_pos = vec![0.0, 0.0, 1.5];
+    s.obj_rot = vec![0.0, 0.0, 0.0, 1.0];
+    s.obj_linvel = vec![0.0; 3];
+    s.obj_angvel = vec![0.0; 3];
+    w.set_state(&s).unwrap();
+    w.pin_root(true);
+    let r = skillaug::sim::objects::BALL_RADIUS;
+    // fall, bounce, then the apex of the first rebound
+    let (mut bounced, mut apex, mut prev_vz) = (false, 0f32, 0f32);
+    for _ in 0..(3.0 * opts.physics_hz) as usize {
+        w.step_physics();
+        let g = w.get_state();
+        let (z, vz) = (g.obj_pos[2], g.obj_linvel[2]);
+        if !bounced && prev_vz < 0.0 && vz > 0.0 {
+            bounced = true;
+        }
+        if bounced {
+            apex = apex.max(z);
+            if vz < 0.0 && z < apex - 0.05 {
+                break;
+            }
+        }
+        prev_vz = vz;
+    }
+    assert!(bounced, "the ball never bounced");
+    // restitution combines as the average of ball (0.81) and ground (0.8)
+    let e = 0.5 * (0.81 + opts.ground_restitution);
+    let fall = 1.5 - r;
+    let want = e * e * fall;
+    let got = apex - r;
+    eprintln!("rebound {got:.3} m, expected {want:.3} m (e = {e})");
+    assert!(
+        (got - want).abs() <= 0.1 * want,
+        "rebound {got} m, expected {want} m"
+    );
+}
+
+#[test]
+fn sixty_four_worlds_under_random_actions_stay_sane_for_ten_seconds() {
+    let (_d, lib, model) = ballplay();
+    let opts = SimOptions::default();
+    let n = 64;
+    let mut env = VecEnv::new(&model, &[ObjectSpec::ball()], &opts, n).unwrap();
+    let start = lib.state(0, 10).unwrap();
+    env.for_each(|_, w| w.set_state(&start).unwrap());
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let a = env.action_dim();
+    let policy_steps = (10.0 / opts.policy_dt() as f64).round() as usize;
+    let (mut worst_speed, mut lowest) = (0f32, (f32::INFINITY, skillaug::sim::world::Part::Ground));
+    for _ in 0..policy_steps {
+        let actions: Vec<f32> = (0..n * a).map(|_| rng.random_range(-1.0..1.0)).collect();
+        env.step(&actions);
+        for w in &env.worlds {
+            let (speed, finite) = w.max_speed();
+            assert!(finite, "non-finite body state");
+            worst_speed = worst_speed.max(speed);
+            let l = w.lowest_point();
+            if l.0 < lowest.0 {
+                lowest = l;
+            }
+        }
+    }
+    eprintln!("{policy_steps} policy steps x {n} worlds: max speed {worst_speed:.2} m/s, lowest point {:.4} m ({:?})", lowest.0, lowest.1);
+    assert!(worst_speed <= 50.0, "a body moved at {worst_speed} m/s");
+    assert!(
+        lowest.0 >= -0.02,
+        "penetration {lowest:?} m into the ground"
+    );
+}
