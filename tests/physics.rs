@@ -180,3 +180,129 @@ fn sixty_four_worlds_under_random_actions_stay_sane_for_ten_seconds() {
         "penetration {lowest:?} m into the ground"
     );
 }
+
+#[test]
+fn parahome_clips_load_their_objects_and_simulate() {
+    let (_dir, out) = ingested("parahome");
+    let lib = skillaug::table::load_library(&out).unwrap();
+    let root = data_root();
+    let model = Model::for_skeleton(&root, lib.skeleton).unwrap();
+    assert_eq!(model.bodies.len(), 61);
+    let opts = SimOptions::for_fps(30.0);
+    assert_eq!(opts.physics_hz, 60.0);
+    for (c, clip) in lib.clips.iter().enumerate() {
+        let t = std::time::Instant::now();
+        let objs = skillaug::sim::objects::load_all(&clip.objects, &root).unwrap();
+        let mut w = World::new(&model, &objs, &opts).unwrap();
+        let s = lib.state(c, 0).unwrap();
+        w.set_state(&s).unwrap();
+        let g = w.get_state();
+        for (a, b) in g.obj_pos.iter().zip(&s.obj_pos) {
+            assert!((a - b).abs() < 1e-5);
+        }
+        let masses: Vec<f32> = (0..w.n_objects()).map(|k| w.object_mass(k)).collect();
+        for (name, m) in clip.objects.iter().zip(&masses) {
+            // plausible masses for a household object at the configured density
+            assert!(*m > 0.1 && *m < 60.0, "{name}: {m} kg");
+        }
+        w.set_joint_targets(&s.joint_rot);
+        for _ in 0..30 {
+            w.step();
+        }
+        let (speed, finite) = w.max_speed();
+        assert!(finite && speed < 50.0, "{}: speed {speed}", clip.name);
+        eprintln!(
+            "{}: objects {:?} masses {:?} kg, built and 1 s simulated in {:.2} s",
+            clip.name,
+            clip.objects,
+            masses,
+            t.elapsed().as_secs_f32()
+        );
+    }
+}
+
+#[test]
+fn contact_forces_weigh_a_resting_ball_and_flag_a_ball_landing_on_the_hand() {
+    let (_d, lib, model) = ballplay();
+    let opts = SimOptions::default();
+    let mut w = World::new(&model, &[ObjectSpec::ball()], &opts).unwrap();
+    // a ball at rest on the ground pushes it with its weight
+    let mut s = lib.state(0, 10).unwrap();
+    s.root_pos = [5.0, 5.0, 1.0];
+    s.obj_pos = vec![0.0, 0.0, 0.12];
+    s.obj_linvel = vec![0.0; 3];
+    s.obj_angvel = vec![0.0; 3];
+    w.set_state(&s).unwrap();
+    w.pin_root(true);
+    for _ in 0..120 {
+        w.step_physics();
+    }
+    let c = w.contacts();
+    let weight = w.object_mass(0) * 9.81;
+    eprintln!(
+        "ball weight {weight:.1} N, ground force {:?}",
+        c.object_force[0]
+    );
+    assert!((c.object_force[0][2] - weight).abs() < 0.05 * weight);
+    assert!(!c.object_hands[0] && !c.object_body[0]);
+
+    // a ball dropped onto the right hand touches a hand body
+    let mut s = lib.state(lib.clips_of("run")[0], 10).unwrap();
+    s.root_pos[2] += 0.5;
+    s.root_linvel = [0.0; 3];
+    s.root_angvel = [0.0; 3];
+    s.joint_vel.iter_mut().for_each(|v| *v = 0.0);
+    w.set_state(&s).unwrap();
+    // above the right hand's middle finger (R_Middle2)
+    let finger = 42;
+    let p = &w.get_state().body_pos[3 * finger..3 * finger + 3];
+    s.obj_pos = vec![p[0], p[1], p[2] + 0.2];
+    s.obj_linvel = vec![0.0; 3];
+    s.obj_angvel = vec![0.0; 3];
+    w.set_state(&s).unwrap();
+    w.pin_root(true);
+    w.set_joint_targets(&s.joint_rot);
+    let mut touched_hand = false;
+    for _ in 0..60 {
+        w.step_physics();
+        let c = w.contacts();
+        if c.object_hands[0] {
+            touched_hand = true;
+            let hand_force: f32 = (37..53)
+                .map(|b| c.body_force[b].iter().map(|f| f * f).sum::<f32>().sqrt())
+                .sum();
+            assert!(hand_force > 0.0, "a touching hand feels a force");
+            let flags = c.reward_contacts(lib.skeleton.contact_penalty_bodies());
+            assert!(flags.ball_hands);
+            break;
+        }
+    }
+    assert!(touched_hand, "the ball never touched the hand");
+}
+
+#[test]
+fn the_vectorised_environment_gives_the_same_states_on_one_and_two_threads() {
+    let (_d, lib, model) = ballplay();
+    let opts = SimOptions::default();
+    let start = lib.state(0, 30).unwrap();
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut env = VecEnv::new(&model, &[ObjectSpec::ball()], &opts, 6).unwrap();
+            env.for_each(|_, w| w.set_state(&start).unwrap());
+            let a = env.action_dim();
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+            for _ in 0..20 {
+                let actions: Vec<f32> = (0..6 * a).map(|_| rng.random_range(-0.3..0.3)).collect();
+                env.step(&actions);
+            }
+            env.states()
+        })
+    };
+    let (one, two) = (run(1), run(2));
+    assert_eq!(one, two);
+    assert_ne!(one[0], one[1], "worlds got different actions");
+}

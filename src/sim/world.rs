@@ -79,6 +79,8 @@ pub struct SimOptions {
     pub hand_min_mass: f32,
     /// Collisions between non-adjacent bodies of the humanoid.
     pub self_collision: bool,
+    /// Collisions among the bodies of one hand (its wrist and fingers).
+    pub hand_self_collision: bool,
     /// Friction of the humanoid and the ground.
     pub friction: f32,
     /// Ground restitution.
@@ -114,6 +116,7 @@ impl Default for SimOptions {
             min_mass: 0.5,
             hand_min_mass: 0.05,
             self_collision: true,
+            hand_self_collision: true,
             friction: 1.0,
             ground_restitution: 0.8,
             ground_contact_hz: 120.0,
@@ -424,16 +427,43 @@ impl World {
             joints.push(pw.impulse_joints.insert(parent, bodies[i], jb, true));
         }
 
-        if !opts.self_collision {
-            // humanoid colliders: member of group 1, collide with everything but group 1
-            let groups = InteractionGroups::new(
-                Group::GROUP_1,
-                Group::ALL ^ Group::GROUP_1,
-                InteractionTestMode::And,
-            );
-            for (_, c) in pw.colliders.iter_mut() {
-                c.set_collision_groups(groups);
+        // Collision groups: 1 = humanoid, 2 and 3 = the two hands.
+        let hand_group = |i: usize| -> Option<Group> {
+            if !sk.hand[i] {
+                return None;
             }
+            // which hand: follow parents up to the wrist
+            let mut w = i;
+            while let Some(p) = sk.parents[w].filter(|&p| sk.hand[p]) {
+                w = p;
+            }
+            let first_wrist = (0..n).find(|&k| sk.hand[k]).unwrap_or(w);
+            Some(if w == first_wrist {
+                Group::GROUP_2
+            } else {
+                Group::GROUP_3
+            })
+        };
+        for (_, c) in pw.colliders.iter_mut() {
+            let Part::Body(i) = Part::of_tag(c.user_data) else {
+                continue;
+            };
+            let mut member = Group::GROUP_1;
+            let mut filter = Group::ALL;
+            if !opts.self_collision {
+                filter ^= Group::GROUP_1;
+            }
+            if let Some(h) = hand_group(i) {
+                member |= h;
+                if !opts.hand_self_collision {
+                    filter ^= h;
+                }
+            }
+            c.set_collision_groups(InteractionGroups::new(
+                member,
+                filter,
+                InteractionTestMode::And,
+            ));
         }
 
         // Ground: the half-space z <= 0.
@@ -689,6 +719,11 @@ impl World {
         (max, finite)
     }
 
+    /// Height of the root body, m.
+    pub fn root_height(&self) -> f32 {
+        self.pw.bodies[self.bodies[0]].translation().z
+    }
+
     /// World rotation of body `i`.
     pub fn body_rotation(&self, i: usize) -> [f32; 4] {
         q4(*self.pw.bodies[self.bodies[i]].rotation())
@@ -777,7 +812,9 @@ impl World {
         let inv_dt = self.pw.integration_parameters.inv_dt();
         let colliders = &self.pw.colliders;
         for pair in self.pw.narrow_phase.contact_pairs() {
-            if !pair.has_any_active_contact() {
+            // touching = a non-zero impulse; contacts merely predicted (within
+            // `prediction_distance`, not yet touching) push nothing
+            if !pair.has_any_active_contact() || pair.total_impulse_magnitude() <= 0.0 {
                 continue;
             }
             let (Some(c1), Some(c2)) =

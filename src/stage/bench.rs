@@ -3,8 +3,21 @@
 //! `bench ingest` ingests every shipped dataset (all four manifests, every
 //! clip in the data root) into a temporary folder, `--repeat` times, and prints
 //! the median wall time per dataset and in total, with the throughput.
+//!
+//! `bench sim` steps the rapier3d humanoid (with the ball and contacts) on
+//! one thread and on every thread of the pool, for the full 53-body model
+//! and for a 23-body variant without finger bodies, and prints physics
+//! steps per second per core and in total, and the scaling. The worlds
+//! start from a Dribble-Forward frame and follow its pose with small action
+//! noise, reset every 60 policy steps (a training episode) and whenever the
+//! root drops below 0.5 m (early termination), so contacts are those of
+//! training rather than of a humanoid lying on the ground or standing still.
 
 use crate::cli::StageArgs;
+use crate::motion::state::State;
+use crate::sim::mjcf::Model;
+use crate::sim::vec_env::VecEnv;
+use crate::sim::{ObjectSpec, SimOptions};
 use anyhow::{bail, Result};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -16,7 +29,22 @@ const DATASETS: [&str; 4] = ["ballplay", "ballplay-m", "locomotion", "parahome"]
 pub fn run(what: &str, repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
     match what {
         "ingest" => ingest(repeat.max(1), data_root),
-        other => bail!("unknown benchmark `{other}` (known: ingest)"),
+        "sim" => sim(repeat.max(1), data_root),
+        other => bail!("unknown benchmark `{other}` (known: ingest, sim)"),
+    }
+}
+
+fn stage_args(out: PathBuf, dataset: &str, data_root: Option<PathBuf>) -> StageArgs {
+    StageArgs {
+        out,
+        dataset: Some(dataset.to_string()),
+        from: None,
+        data_root,
+        recipe: None,
+        set: Vec::new(),
+        seed: 0,
+        threads: None,
+        quiet: true,
     }
 }
 
@@ -37,17 +65,7 @@ fn ingest(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
         let out = tmp.path().join(name);
         let mut times = Vec::with_capacity(repeat);
         for total in totals.iter_mut() {
-            let args = StageArgs {
-                out: out.clone(),
-                dataset: Some(name.to_string()),
-                from: None,
-                data_root: data_root.clone(),
-                recipe: None,
-                set: Vec::new(),
-                seed: 0,
-                threads: None,
-                quiet: true,
-            };
+            let args = stage_args(out.clone(), name, data_root.clone());
             let t = Instant::now();
             super::ingest::run(&super::Common::new(args)?, false)?;
             let s = t.elapsed().as_secs_f64();
@@ -83,6 +101,115 @@ fn ingest(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
         "all",
         all_frames as f64 / m,
         rayon::current_num_threads()
+    );
+    Ok(())
+}
+
+/// Physics steps per second of `worlds` worlds for `policy_steps` steps,
+/// run on a pool of `threads` threads.
+fn sim_rate(
+    model: &Model,
+    start: &State,
+    threads: usize,
+    worlds: usize,
+    policy_steps: usize,
+) -> Result<f64> {
+    use rand::{Rng, SeedableRng};
+    let opts = SimOptions::default();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
+    pool.install(|| -> Result<f64> {
+        let mut env = VecEnv::new(model, &[ObjectSpec::ball()], &opts, worlds)?;
+        let a = env.action_dim();
+        let base: Vec<f32> = start.joint_rot[..a]
+            .iter()
+            .map(|v| v / std::f32::consts::PI)
+            .collect();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+        let t = Instant::now();
+        for step in 0..policy_steps {
+            if step % 60 == 0 {
+                env.for_each(|_, w| w.set_state(start).expect("state fits the model"));
+            }
+            let actions: Vec<f32> = (0..worlds * a)
+                .map(|k| base[k % a] + rng.random_range(-0.1..0.1))
+                .collect();
+            env.step(&actions);
+            // early termination, as in training: a fallen world restarts
+            env.for_each(|_, w| {
+                if w.root_height() < 0.5 {
+                    w.set_state(start).expect("state fits the model");
+                }
+            });
+        }
+        let steps = (worlds * policy_steps * opts.substeps) as f64;
+        Ok(steps / t.elapsed().as_secs_f64())
+    })
+}
+
+fn sim(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
+    let tmp = tempfile::tempdir()?;
+    let out = tmp.path().join("ballplay");
+    super::ingest::run(
+        &super::Common::new(stage_args(out.clone(), "ballplay", data_root.clone()))?,
+        false,
+    )?;
+    let lib = crate::table::load_library(&out)?;
+    let root = crate::dataset::data_root(data_root.as_deref())?;
+    let full = Model::for_skeleton(&root, lib.skeleton)?;
+    let hands = crate::sim::world::hand_bodies(&full);
+    let finger = |b: &crate::sim::mjcf::Body| b.parent.is_some_and(|p| hands[p]);
+    let no_fingers = full.without(finger);
+    // original index of each kept body
+    let kept: Vec<usize> = (0..full.bodies.len())
+        .filter(|&i| !finger(&full.bodies[i]))
+        .collect();
+    let run = lib.clips_of("run");
+    let clip = run.first().copied().unwrap_or(0);
+    let s = lib
+        .state(clip, 10)
+        .ok_or_else(|| anyhow::anyhow!("frame 10 of the first run clip is missing"))?;
+    let threads = rayon::current_num_threads();
+    let (worlds, policy_steps) = (16, 240);
+    println!(
+        "{:<22} {:>6} {:>14} {:>16} {:>8}",
+        "model",
+        "bodies",
+        "1 thread /s",
+        format!("{threads} threads /s"),
+        "scaling"
+    );
+    let all_bodies: Vec<usize> = (0..full.bodies.len()).collect();
+    for (name, model, bodies) in [
+        ("full (with fingers)", &full, &all_bodies),
+        ("without fingers", &no_fingers, &kept),
+    ] {
+        let mut st = s.clone();
+        let joints = |v: &[f32]| -> Vec<f32> {
+            bodies[1..]
+                .iter()
+                .flat_map(|&b| v[3 * (b - 1)..3 * b].to_vec())
+                .collect()
+        };
+        st.joint_rot = joints(&s.joint_rot);
+        st.joint_vel = joints(&s.joint_vel);
+        let mut one = Vec::new();
+        let mut all = Vec::new();
+        for _ in 0..repeat {
+            one.push(sim_rate(model, &st, 1, worlds, policy_steps)?);
+            all.push(sim_rate(model, &st, threads, worlds, policy_steps)?);
+        }
+        let (one, all) = (median(one), median(all));
+        println!(
+            "{name:<22} {:>6} {one:>14.0} {all:>16.0} {:>7.2}x   ({:.0} steps/s per core)",
+            model.bodies.len(),
+            all / one,
+            all / threads as f64
+        );
+    }
+    println!(
+        "physics steps of {worlds} worlds x {policy_steps} policy steps x 2 substeps (120 Hz), ball and contacts on; median of {repeat}"
     );
     Ok(())
 }
