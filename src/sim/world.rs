@@ -67,6 +67,8 @@ pub struct SimOptions {
     pub pgs_iterations: usize,
     /// rapier internal stabilisation (position correction) iterations.
     pub stabilization_iterations: usize,
+    /// Warm-start joint impulses from the previous step (rapier's default off).
+    pub warmstart_joints: bool,
     /// rapier's contact recycling (reuse a pair's contact points while it
     /// moved less than 5 cm; rapier's default, faster).
     pub contact_recycling: bool,
@@ -112,6 +114,7 @@ impl Default for SimOptions {
             pgs_iterations: 4,
             stabilization_iterations: 1,
             contact_recycling: true,
+            warmstart_joints: false,
             armature_inertia: true,
             min_mass: 0.5,
             hand_min_mass: 0.05,
@@ -327,6 +330,7 @@ impl World {
         ip.num_internal_pgs_iterations = opts.pgs_iterations.max(1);
         ip.num_internal_stabilization_iterations = opts.stabilization_iterations;
         ip.contact_recycling = opts.contact_recycling;
+        ip.warmstart_joints = opts.warmstart_joints;
         ip.normalized_prediction_distance = opts.prediction_distance;
         ip.static_contact_softness.natural_frequency = opts.ground_contact_hz;
         ip.normalized_max_corrective_velocity = opts.max_depenetration_velocity;
