@@ -16,6 +16,7 @@ pub mod nn;
 pub mod progress;
 pub mod pt;
 pub mod reward;
+pub mod rl;
 pub mod sim;
 pub mod stage;
 pub mod table;

@@ -1,4 +1,4 @@
-//! Networks in candle: the only code (with `ppo/`, later) that touches
+//! Networks in candle: the only code (with `rl/`, the PPO core) that touches
 //! candle. Layers are built with seeded, PyTorch-style initial weights
 //! (uniform in +-1/sqrt(fan_in), biases too), because candle's own
 //! initialisers draw from an unseeded generator and start far larger

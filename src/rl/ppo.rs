@@ -1,0 +1,857 @@
+//! PPO with a fixed-σ Gaussian policy, a separate value network, GAE, a
+//! bounds loss and running observation normalisation, following SkillMimic
+//! (reference §10.1–10.4; defaults are its values):
+//!
+//! * policy mean and value: separate ReLU MLPs, hidden `[1024, 512, 512]`,
+//!   linear heads; hidden layers use PyTorch's default `Linear` weight
+//!   distribution `U(-1/sqrt(fan_in), 1/sqrt(fan_in))`, every bias is 0
+//!   (§10.1). The policy head is drawn from `U(-0.01, 0.01)` by default so
+//!   that first actions are near 0 (`policy_out_bound`; set it to `null`
+//!   for SkillMimic's plain PyTorch default head).
+//! * σ fixed: log σ = −2.9, σ ≈ 0.055 **standard deviation**. The paper calls
+//!   0.055 a "variance"; the released code (reference §10.1) uses it as the
+//!   std, and so do we by default. `sigma_is_variance: true` reads `sigma`
+//!   as a variance (σ = sqrt(sigma)) for the paper's literal wording.
+//! * γ 0.99, GAE λ 0.95, clip ε 0.2, Adam lr 2e-5 (paper Table 6; ε 1e-8,
+//!   no weight decay, constant schedule), 6 mini-epochs, minibatch 16 384,
+//!   critic coefficient 5, plain (unclipped) squared value error, bounds
+//!   loss coefficient 10 on `Σ_d max(|μ_d| − 1, 0)²`, no entropy term, no
+//!   gradient clipping (§10.2–10.3).
+//! * advantages = GAE returns − values, normalised over the **whole batch**
+//!   (zero mean, unit std + 1e-8) before the mini-epochs, as rl_games does.
+//! * `done` (termination: no bootstrap) and `timeout` (truncation: bootstrap
+//!   from V of the episode's last observation, which the caller supplies)
+//!   are separate (§10.4).
+//! * observation normalisation: the running statistics are merged once per
+//!   update with the whole rollout batch, before the mini-epochs, and are
+//!   frozen during rollouts. rl_games merges on every minibatch forward in
+//!   train mode (24 merges of the same samples per epoch); one merge per
+//!   batch gives the same mean and a variance weighted per sample rather
+//!   than per pass, and keeps the normaliser fixed within an update.
+//! * value normalisation (rl_games `normalize_value`) is not implemented:
+//!   the critic predicts raw returns.
+//!
+//! Adam is written here with explicit first/second-moment tensors and step
+//! count because candle-nn's `AdamW` keeps its moments private, so they
+//! could not be checkpointed for an exact resume. Every weight is drawn from
+//! a seeded `ChaCha8Rng` (candle's own initialisers are unseeded), and all
+//! sampling uses the caller's generator, so a run repeats bit for bit for
+//! the same seed and thread count.
+
+use super::norm::RunningNorm;
+use anyhow::{bail, ensure, Context, Result};
+use candle_core::{DType, Device, Tensor, Var, D};
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// PPO hyper-parameters (SkillMimic defaults).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PpoConfig {
+    /// Hidden layer sizes of both the policy and the value MLP.
+    pub hidden: Vec<usize>,
+    /// Action noise: the std (default) or, with `sigma_is_variance`, the
+    /// variance of the fixed Gaussian.
+    pub sigma: f64,
+    /// Read `sigma` as a variance instead of a standard deviation.
+    pub sigma_is_variance: bool,
+    /// Discount γ.
+    pub gamma: f64,
+    /// GAE λ.
+    pub lambda: f64,
+    /// PPO ratio clip ε.
+    pub clip: f64,
+    /// Adam learning rate.
+    pub lr: f64,
+    /// Adam ε.
+    pub adam_eps: f64,
+    /// Mini-epochs per update.
+    pub epochs: usize,
+    /// Minibatch size (capped at the batch size; a smaller last minibatch
+    /// is used when it does not divide the batch).
+    pub minibatch: usize,
+    /// Weight of the value loss.
+    pub critic_coef: f64,
+    /// Clip the value prediction around the rollout value by ε (off in
+    /// SkillMimic: plain squared error).
+    pub clip_value: bool,
+    /// Weight of the bounds loss on the policy mean.
+    pub bounds_coef: f64,
+    /// The soft bound on |μ| beyond which the bounds loss applies.
+    pub bounds_soft: f64,
+    /// Normalise observations with running statistics.
+    pub normalize_obs: bool,
+    /// Normalise advantages over the whole batch.
+    pub normalize_advantages: bool,
+    /// Policy head weights drawn from `U(-b, b)`; `None`: PyTorch default.
+    pub policy_out_bound: Option<f64>,
+}
+
+impl Default for PpoConfig {
+    fn default() -> Self {
+        PpoConfig {
+            hidden: vec![1024, 512, 512],
+            sigma: 0.055,
+            sigma_is_variance: false,
+            gamma: 0.99,
+            lambda: 0.95,
+            clip: 0.2,
+            lr: 2e-5,
+            adam_eps: 1e-8,
+            epochs: 6,
+            minibatch: 16384,
+            critic_coef: 5.0,
+            clip_value: false,
+            bounds_coef: 10.0,
+            bounds_soft: 1.0,
+            normalize_obs: true,
+            normalize_advantages: true,
+            policy_out_bound: Some(0.01),
+        }
+    }
+}
+
+impl PpoConfig {
+    /// The action standard deviation σ.
+    pub fn std(&self) -> f64 {
+        if self.sigma_is_variance {
+            self.sigma.sqrt()
+        } else {
+            self.sigma
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        ensure!(self.sigma > 0.0, "ppo: sigma must be > 0");
+        ensure!(
+            self.epochs > 0 && self.minibatch > 0,
+            "ppo: epochs and minibatch must be > 0"
+        );
+        ensure!(self.lr > 0.0, "ppo: lr must be > 0");
+        ensure!(
+            self.hidden.iter().all(|&h| h > 0),
+            "ppo: hidden sizes must be > 0"
+        );
+        Ok(())
+    }
+}
+
+/// One linear layer's variables.
+struct Dense {
+    w: Var,
+    b: Var,
+}
+
+/// A ReLU MLP over named variables `prefix.i.weight` / `prefix.i.bias`.
+struct Net {
+    layers: Vec<Dense>,
+}
+
+impl Net {
+    /// Hidden layers `U(±1/sqrt(fan_in))`, head `U(±out_bound)` (or the
+    /// same default), all biases 0.
+    fn new(
+        sizes: &[usize],
+        out_bound: Option<f64>,
+        rng: &mut ChaCha8Rng,
+        dev: &Device,
+    ) -> Result<Net> {
+        let nl = sizes.len() - 1;
+        let mut layers = Vec::with_capacity(nl);
+        for (i, w) in sizes.windows(2).enumerate() {
+            let (inp, out) = (w[0], w[1]);
+            let bound = match out_bound {
+                Some(b) if i + 1 == nl => b,
+                _ => 1.0 / (inp as f64).sqrt(),
+            };
+            let data: Vec<f32> = (0..inp * out)
+                .map(|_| {
+                    if bound > 0.0 {
+                        rng.random_range(-bound..bound) as f32
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            let w = Var::from_tensor(&Tensor::from_vec(data, (out, inp), dev)?)?;
+            let b = Var::zeros(out, DType::F32, dev)?;
+            layers.push(Dense { w, b });
+        }
+        Ok(Net { layers })
+    }
+
+    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        let mut h = x.clone();
+        let n = self.layers.len();
+        for (i, l) in self.layers.iter().enumerate() {
+            h = h
+                .matmul(&l.w.as_tensor().t()?)?
+                .broadcast_add(l.b.as_tensor())?;
+            if i + 1 < n {
+                h = h.relu()?;
+            }
+        }
+        Ok(h)
+    }
+
+    fn named(&self, prefix: &str) -> Vec<(String, Var)> {
+        let mut v = Vec::new();
+        for (i, l) in self.layers.iter().enumerate() {
+            v.push((format!("{prefix}.{i}.weight"), l.w.clone()));
+            v.push((format!("{prefix}.{i}.bias"), l.b.clone()));
+        }
+        v
+    }
+}
+
+/// Adam (PyTorch formula, no weight decay) with its state in the open so
+/// it can be checkpointed: candle-nn's `AdamW` keeps its moments private.
+struct Adam {
+    m: Vec<Tensor>,
+    v: Vec<Tensor>,
+    step: u64,
+}
+
+impl Adam {
+    fn new(vars: &[(String, Var)]) -> Result<Adam> {
+        let zeros = |var: &Var| var.as_tensor().zeros_like();
+        Ok(Adam {
+            m: vars
+                .iter()
+                .map(|(_, v)| zeros(v))
+                .collect::<candle_core::Result<_>>()?,
+            v: vars
+                .iter()
+                .map(|(_, v)| zeros(v))
+                .collect::<candle_core::Result<_>>()?,
+            step: 0,
+        })
+    }
+
+    fn apply(
+        &mut self,
+        vars: &[(String, Var)],
+        grads: &candle_core::backprop::GradStore,
+        lr: f64,
+        eps: f64,
+    ) -> Result<()> {
+        const B1: f64 = 0.9;
+        const B2: f64 = 0.999;
+        self.step += 1;
+        let t = self.step as i32;
+        let bc1 = 1.0 - B1.powi(t);
+        let bc2 = 1.0 - B2.powi(t);
+        for (k, (name, var)) in vars.iter().enumerate() {
+            let Some(g) = grads.get(var.as_tensor()) else {
+                bail!("ppo: no gradient for `{name}`");
+            };
+            self.m[k] = (self.m[k].affine(B1, 0.0)? + g.affine(1.0 - B1, 0.0)?)?;
+            self.v[k] = (self.v[k].affine(B2, 0.0)? + g.sqr()?.affine(1.0 - B2, 0.0)?)?;
+            let denom = self.v[k].sqrt()?.affine(1.0 / bc2.sqrt(), eps)?;
+            let upd = self.m[k].div(&denom)?.affine(lr / bc1, 0.0)?;
+            var.set(&var.as_tensor().sub(&upd)?)?;
+        }
+        Ok(())
+    }
+}
+
+/// What [`Agent::act`] returns for a batch of `N` observations.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ActOut {
+    /// Actions, `N * act_dim` (the mean when deterministic).
+    pub actions: Vec<f32>,
+    /// log π(a | s) of each action under the current policy.
+    pub logp: Vec<f32>,
+    /// V(s) of each observation.
+    pub values: Vec<f32>,
+}
+
+/// The losses and diagnostics of one [`Agent::update`], averaged over its
+/// minibatches.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct UpdateStats {
+    /// Clipped surrogate loss.
+    pub policy_loss: f64,
+    /// Value loss (squared error, before `critic_coef`).
+    pub value_loss: f64,
+    /// Bounds loss (before `bounds_coef`).
+    pub bounds_loss: f64,
+    /// Total loss.
+    pub total_loss: f64,
+    /// Fraction of samples with |ratio − 1| > ε.
+    pub clip_frac: f64,
+    /// Approximate KL(old ‖ new), `mean(½ (log r)²)`.
+    pub approx_kl: f64,
+    /// Mean GAE advantage before normalisation.
+    pub adv_mean: f64,
+    /// Mean return target.
+    pub return_mean: f64,
+    /// Number of gradient steps taken.
+    pub steps: usize,
+}
+
+/// One step of `N` environments, as pushed into a [`Rollout`]. Slices are
+/// per env (`N` long) or per env and dimension (`N * dim`).
+pub struct Transition<'a> {
+    /// Observations the actions were chosen from (raw, unnormalised).
+    pub obs: &'a [f32],
+    /// Actions taken.
+    pub actions: &'a [f32],
+    /// log π of the actions at collection time.
+    pub logp: &'a [f32],
+    /// V(obs) at collection time.
+    pub values: &'a [f32],
+    /// Rewards received.
+    pub rewards: &'a [f32],
+    /// Episode ended by termination (no bootstrap).
+    pub terminated: &'a [bool],
+    /// Episode ended by a time limit (bootstrap from `bootstrap_values`).
+    pub truncated: &'a [bool],
+    /// V of the true last observation of episodes that were truncated at
+    /// this step; read only where `truncated` (and not `terminated`).
+    pub bootstrap_values: &'a [f32],
+}
+
+/// A rollout buffer `[T steps][N envs]`, stored step-major.
+#[derive(Clone, Debug)]
+pub struct Rollout {
+    num_envs: usize,
+    obs_dim: usize,
+    act_dim: usize,
+    obs: Vec<f32>,
+    actions: Vec<f32>,
+    logp: Vec<f32>,
+    values: Vec<f32>,
+    rewards: Vec<f32>,
+    terminated: Vec<bool>,
+    truncated: Vec<bool>,
+    bootstrap: Vec<f32>,
+    last_values: Option<Vec<f32>>,
+}
+
+impl Rollout {
+    /// An empty buffer for `num_envs` environments.
+    pub fn new(num_envs: usize, obs_dim: usize, act_dim: usize) -> Self {
+        Rollout {
+            num_envs,
+            obs_dim,
+            act_dim,
+            obs: Vec::new(),
+            actions: Vec::new(),
+            logp: Vec::new(),
+            values: Vec::new(),
+            rewards: Vec::new(),
+            terminated: Vec::new(),
+            truncated: Vec::new(),
+            bootstrap: Vec::new(),
+            last_values: None,
+        }
+    }
+
+    /// Number of steps `T` pushed.
+    pub fn steps(&self) -> usize {
+        self.rewards.len() / self.num_envs.max(1)
+    }
+
+    /// Number of environments `N`.
+    pub fn num_envs(&self) -> usize {
+        self.num_envs
+    }
+
+    /// Append one step.
+    pub fn push(&mut self, t: &Transition<'_>) -> Result<()> {
+        let n = self.num_envs;
+        ensure!(self.last_values.is_none(), "rollout: push after finish");
+        ensure!(t.obs.len() == n * self.obs_dim, "rollout: obs length");
+        ensure!(
+            t.actions.len() == n * self.act_dim,
+            "rollout: actions length"
+        );
+        for (name, len) in [
+            ("logp", t.logp.len()),
+            ("values", t.values.len()),
+            ("rewards", t.rewards.len()),
+            ("terminated", t.terminated.len()),
+            ("truncated", t.truncated.len()),
+            ("bootstrap_values", t.bootstrap_values.len()),
+        ] {
+            ensure!(len == n, "rollout: {name} has {len} entries, expected {n}");
+        }
+        self.obs.extend_from_slice(t.obs);
+        self.actions.extend_from_slice(t.actions);
+        self.logp.extend_from_slice(t.logp);
+        self.values.extend_from_slice(t.values);
+        self.rewards.extend_from_slice(t.rewards);
+        self.terminated.extend_from_slice(t.terminated);
+        self.truncated.extend_from_slice(t.truncated);
+        self.bootstrap.extend_from_slice(t.bootstrap_values);
+        Ok(())
+    }
+
+    /// Close the buffer with V of the observations after the last step.
+    pub fn finish(&mut self, last_values: &[f32]) -> Result<()> {
+        ensure!(
+            last_values.len() == self.num_envs,
+            "rollout: last_values length"
+        );
+        self.last_values = Some(last_values.to_vec());
+        Ok(())
+    }
+
+    /// GAE advantages and returns (`T * N`, step-major).
+    pub fn advantages(&self, gamma: f64, lambda: f64) -> Result<(Vec<f32>, Vec<f32>)> {
+        let last = self
+            .last_values
+            .as_ref()
+            .context("rollout: finish() was not called")?;
+        Ok(gae(
+            &GaeInput {
+                rewards: &self.rewards,
+                values: &self.values,
+                terminated: &self.terminated,
+                truncated: &self.truncated,
+                bootstrap: &self.bootstrap,
+                last_values: last,
+                num_envs: self.num_envs,
+            },
+            gamma,
+            lambda,
+        ))
+    }
+}
+
+/// Inputs of [`gae`], step-major `[T][N]` slices.
+pub struct GaeInput<'a> {
+    /// r_t.
+    pub rewards: &'a [f32],
+    /// V(s_t).
+    pub values: &'a [f32],
+    /// Episode terminated at t (next value 0).
+    pub terminated: &'a [bool],
+    /// Episode truncated at t (next value `bootstrap`).
+    pub truncated: &'a [bool],
+    /// V of the truncated episode's last observation.
+    pub bootstrap: &'a [f32],
+    /// V(s_T) after the last step, `N` long.
+    pub last_values: &'a [f32],
+    /// N.
+    pub num_envs: usize,
+}
+
+/// Generalised advantage estimation (reference §10.4):
+/// `next_v = 0` if terminated, the supplied bootstrap value if truncated,
+/// `V(s_{t+1})` otherwise; `δ_t = r_t + γ next_v − V_t`;
+/// `A_t = δ_t + γλ (1 − done_t) A_{t+1}` with `done = terminated ∨
+/// truncated`; returns `A + V`. Computed in `f64`.
+pub fn gae(inp: &GaeInput<'_>, gamma: f64, lambda: f64) -> (Vec<f32>, Vec<f32>) {
+    let n = inp.num_envs;
+    let len = inp.rewards.len();
+    let t_len = len / n;
+    let mut adv = vec![0f32; len];
+    let mut ret = vec![0f32; len];
+    for e in 0..n {
+        let mut a_next = 0.0f64;
+        for t in (0..t_len).rev() {
+            let k = t * n + e;
+            let v = inp.values[k] as f64;
+            let next_v = if inp.terminated[k] {
+                0.0
+            } else if inp.truncated[k] {
+                inp.bootstrap[k] as f64
+            } else if t + 1 == t_len {
+                inp.last_values[e] as f64
+            } else {
+                inp.values[k + n] as f64
+            };
+            let done = inp.terminated[k] || inp.truncated[k];
+            let delta = inp.rewards[k] as f64 + gamma * next_v - v;
+            let a = delta + if done { 0.0 } else { gamma * lambda * a_next };
+            adv[k] = a as f32;
+            ret[k] = (a + v) as f32;
+            a_next = a;
+        }
+    }
+    (adv, ret)
+}
+
+/// A standard normal draw (Box–Muller) from the caller's generator.
+fn normal_pair<R: Rng + ?Sized>(rng: &mut R) -> (f64, f64) {
+    let u1: f64 = 1.0 - rng.random::<f64>(); // (0, 1]
+    let u2: f64 = rng.random::<f64>();
+    let r = (-2.0 * u1.ln()).sqrt();
+    let th = std::f64::consts::TAU * u2;
+    (r * th.cos(), r * th.sin())
+}
+
+/// Scalars of a checkpoint (the JSON sidecar).
+#[derive(Serialize, Deserialize)]
+struct Sidecar {
+    format: u32,
+    obs_dim: usize,
+    act_dim: usize,
+    config: PpoConfig,
+    adam_step: u64,
+    norm_count: f64,
+}
+
+/// The PPO learner: policy and value networks, optimiser and normaliser.
+pub struct Agent {
+    cfg: PpoConfig,
+    obs_dim: usize,
+    act_dim: usize,
+    std: f64,
+    pi: Net,
+    vf: Net,
+    vars: Vec<(String, Var)>,
+    adam: Adam,
+    norm: RunningNorm,
+    dev: Device,
+}
+
+impl Agent {
+    /// A fresh agent; weights drawn from `ChaCha8Rng::seed_from_u64(seed)`
+    /// (policy layers first, then value layers).
+    pub fn new(
+        obs_dim: usize,
+        act_dim: usize,
+        cfg: &PpoConfig,
+        seed: u64,
+        dev: &Device,
+    ) -> Result<Agent> {
+        cfg.validate()?;
+        ensure!(
+            obs_dim > 0 && act_dim > 0,
+            "ppo: empty observation or action"
+        );
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut sizes = vec![obs_dim];
+        sizes.extend_from_slice(&cfg.hidden);
+        sizes.push(act_dim);
+        let pi = Net::new(&sizes, cfg.policy_out_bound, &mut rng, dev)?;
+        *sizes.last_mut().expect("sizes") = 1;
+        let vf = Net::new(&sizes, None, &mut rng, dev)?;
+        let mut vars = pi.named("pi");
+        vars.extend(vf.named("vf"));
+        let adam = Adam::new(&vars)?;
+        Ok(Agent {
+            std: cfg.std(),
+            cfg: cfg.clone(),
+            obs_dim,
+            act_dim,
+            pi,
+            vf,
+            vars,
+            adam,
+            norm: RunningNorm::new(obs_dim),
+            dev: dev.clone(),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &PpoConfig {
+        &self.cfg
+    }
+
+    /// Observation size.
+    pub fn obs_dim(&self) -> usize {
+        self.obs_dim
+    }
+
+    /// Action size.
+    pub fn act_dim(&self) -> usize {
+        self.act_dim
+    }
+
+    /// The observation normaliser.
+    pub fn normalizer(&self) -> &RunningNorm {
+        &self.norm
+    }
+
+    /// Number of optimiser steps taken.
+    pub fn optimizer_steps(&self) -> u64 {
+        self.adam.step
+    }
+
+    /// Every weight, by name, as flat `f32` vectors (stable order).
+    pub fn weights(&self) -> Result<Vec<(String, Vec<f32>)>> {
+        self.vars
+            .iter()
+            .map(|(k, v)| Ok((k.clone(), v.as_tensor().flatten_all()?.to_vec1::<f32>()?)))
+            .collect()
+    }
+
+    fn obs_tensor(&self, obs: &[f32]) -> Result<Tensor> {
+        ensure!(
+            obs.len() % self.obs_dim == 0,
+            "ppo: {} observation values are not rows of {}",
+            obs.len(),
+            self.obs_dim
+        );
+        let rows = obs.len() / self.obs_dim;
+        let x = if self.cfg.normalize_obs {
+            self.norm.normalize(obs)
+        } else {
+            obs.to_vec()
+        };
+        Ok(Tensor::from_vec(x, (rows, self.obs_dim), &self.dev)?)
+    }
+
+    /// V(s) for a batch of raw observations.
+    pub fn values(&self, obs: &[f32]) -> Result<Vec<f32>> {
+        let x = self.obs_tensor(obs)?;
+        Ok(self.vf.forward(&x)?.flatten_all()?.to_vec1::<f32>()?)
+    }
+
+    /// The policy mean μ(s) for a batch of raw observations.
+    pub fn mean_action(&self, obs: &[f32]) -> Result<Vec<f32>> {
+        let x = self.obs_tensor(obs)?;
+        Ok(self.pi.forward(&x)?.flatten_all()?.to_vec1::<f32>()?)
+    }
+
+    /// Actions for a batch of raw observations (`N * obs_dim`): μ when
+    /// `deterministic`, else μ + σ·z with z drawn from `rng`; with their
+    /// log-probabilities and the state values.
+    pub fn act<R: Rng + ?Sized>(
+        &self,
+        obs: &[f32],
+        deterministic: bool,
+        rng: &mut R,
+    ) -> Result<ActOut> {
+        let x = self.obs_tensor(obs)?;
+        let mu = self.pi.forward(&x)?.flatten_all()?.to_vec1::<f32>()?;
+        let values = self.vf.forward(&x)?.flatten_all()?.to_vec1::<f32>()?;
+        let d = self.act_dim;
+        let mut z = vec![0f64; mu.len()];
+        if !deterministic {
+            for pair in z.chunks_mut(2) {
+                let (a, b) = normal_pair(rng);
+                pair[0] = a;
+                if pair.len() > 1 {
+                    pair[1] = b;
+                }
+            }
+        }
+        let actions: Vec<f32> = mu
+            .iter()
+            .zip(&z)
+            .map(|(&m, &z)| (m as f64 + self.std * z) as f32)
+            .collect();
+        let c = 0.5 * d as f64 * std::f64::consts::TAU.ln() + d as f64 * self.std.ln();
+        let logp = actions
+            .chunks_exact(d)
+            .zip(mu.chunks_exact(d))
+            .map(|(a, m)| {
+                let q: f64 = a
+                    .iter()
+                    .zip(m)
+                    .map(|(&a, &m)| ((a as f64 - m as f64) / self.std).powi(2))
+                    .sum();
+                (-0.5 * q - c) as f32
+            })
+            .collect();
+        Ok(ActOut {
+            actions,
+            logp,
+            values,
+        })
+    }
+
+    /// One PPO update on a finished rollout; the minibatch permutations are
+    /// drawn from `rng`.
+    pub fn update<R: Rng + ?Sized>(&mut self, ro: &Rollout, rng: &mut R) -> Result<UpdateStats> {
+        ensure!(
+            ro.obs_dim == self.obs_dim && ro.act_dim == self.act_dim,
+            "ppo: rollout sizes differ from the agent's"
+        );
+        let (mut adv, ret) = ro.advantages(self.cfg.gamma, self.cfg.lambda)?;
+        let b = adv.len();
+        ensure!(b > 0, "ppo: empty rollout");
+        let mut stats = UpdateStats {
+            adv_mean: adv.iter().map(|&a| a as f64).sum::<f64>() / b as f64,
+            return_mean: ret.iter().map(|&a| a as f64).sum::<f64>() / b as f64,
+            ..Default::default()
+        };
+        if self.cfg.normalize_advantages {
+            let m = stats.adv_mean;
+            let var =
+                adv.iter().map(|&a| (a as f64 - m).powi(2)).sum::<f64>() / (b.max(2) - 1) as f64;
+            let s = var.sqrt() + 1e-8;
+            for a in &mut adv {
+                *a = ((*a as f64 - m) / s) as f32;
+            }
+        }
+        if self.cfg.normalize_obs {
+            self.norm.update(&ro.obs)?;
+        }
+        let dev = self.dev.clone();
+        let obs = self.obs_tensor(&ro.obs)?;
+        let act = Tensor::from_slice(&ro.actions, (b, self.act_dim), &dev)?;
+        let old_logp = Tensor::from_slice(&ro.logp, b, &dev)?;
+        let old_v = Tensor::from_slice(&ro.values, b, &dev)?;
+        let adv = Tensor::from_vec(adv, b, &dev)?;
+        let ret = Tensor::from_vec(ret, b, &dev)?;
+        let mb = self.cfg.minibatch.min(b);
+        let d = self.act_dim as f64;
+        let logc = 0.5 * d * std::f64::consts::TAU.ln() + d * self.std.ln();
+        let eps = self.cfg.clip;
+        let mut perm: Vec<u32> = (0..b as u32).collect();
+        for _ in 0..self.cfg.epochs {
+            perm.shuffle(rng);
+            for chunk in perm.chunks(mb) {
+                let idx = Tensor::from_slice(chunk, chunk.len(), &dev)?;
+                let x = obs.index_select(&idx, 0)?;
+                let a = act.index_select(&idx, 0)?;
+                let olp = old_logp.index_select(&idx, 0)?;
+                let ov = old_v.index_select(&idx, 0)?;
+                let ad = adv.index_select(&idx, 0)?;
+                let rt = ret.index_select(&idx, 0)?;
+                let mu = self.pi.forward(&x)?;
+                let z = (a - &mu)?.affine(1.0 / self.std, 0.0)?;
+                let logp = z.sqr()?.sum(D::Minus1)?.affine(-0.5, -logc)?;
+                let log_ratio = (logp - &olp)?.clamp(-20f32, 20f32)?;
+                let ratio = log_ratio.exp()?;
+                let s1 = ratio.mul(&ad)?;
+                let s2 = ratio.clamp(1.0 - eps, 1.0 + eps)?.mul(&ad)?;
+                let pl = s1.minimum(&s2)?.mean_all()?.neg()?;
+                let v = self.vf.forward(&x)?.squeeze(D::Minus1)?;
+                let vl = if self.cfg.clip_value {
+                    let vc = (&ov + (&v - &ov)?.clamp(-eps, eps)?)?;
+                    (&v - &rt)?
+                        .sqr()?
+                        .maximum(&(vc - &rt)?.sqr()?)?
+                        .mean_all()?
+                } else {
+                    (&v - &rt)?.sqr()?.mean_all()?
+                };
+                let soft = self.cfg.bounds_soft;
+                let hi = mu.affine(1.0, -soft)?.relu()?.sqr()?;
+                let lo = mu.affine(-1.0, -soft)?.relu()?.sqr()?;
+                let bl = (hi + lo)?.sum(D::Minus1)?.mean_all()?;
+                let total = ((&pl + vl.affine(self.cfg.critic_coef, 0.0)?)?
+                    + bl.affine(self.cfg.bounds_coef, 0.0)?)?;
+                let grads = total.backward()?;
+                self.adam
+                    .apply(&self.vars, &grads, self.cfg.lr, self.cfg.adam_eps)?;
+                let lr_v = log_ratio.to_vec1::<f32>()?;
+                let n = lr_v.len() as f64;
+                stats.clip_frac += lr_v
+                    .iter()
+                    .filter(|&&l| ((l as f64).exp() - 1.0).abs() > eps)
+                    .count() as f64
+                    / n;
+                stats.approx_kl += lr_v.iter().map(|&l| 0.5 * (l as f64).powi(2)).sum::<f64>() / n;
+                stats.policy_loss += pl.to_scalar::<f32>()? as f64;
+                stats.value_loss += vl.to_scalar::<f32>()? as f64;
+                stats.bounds_loss += bl.to_scalar::<f32>()? as f64;
+                stats.total_loss += total.to_scalar::<f32>()? as f64;
+                stats.steps += 1;
+            }
+        }
+        let k = stats.steps as f64;
+        stats.clip_frac /= k;
+        stats.approx_kl /= k;
+        stats.policy_loss /= k;
+        stats.value_loss /= k;
+        stats.bounds_loss /= k;
+        stats.total_loss /= k;
+        Ok(stats)
+    }
+
+    /// The JSON sidecar's path for checkpoint `path`: `path` with extension
+    /// `json` (`ckpt.safetensors` → `ckpt.json`).
+    pub fn sidecar_path(path: &Path) -> PathBuf {
+        path.with_extension("json")
+    }
+
+    /// Save weights, Adam moments, normaliser statistics (safetensors at
+    /// `path`) and scalars with the config (JSON sidecar, see
+    /// [`Agent::sidecar_path`]); each file is written to a temporary name
+    /// and renamed into place.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let mut map: HashMap<String, Tensor> = HashMap::new();
+        for (k, (name, var)) in self.vars.iter().enumerate() {
+            map.insert(name.clone(), var.as_tensor().clone());
+            map.insert(format!("adam.m.{name}"), self.adam.m[k].clone());
+            map.insert(format!("adam.v.{name}"), self.adam.v[k].clone());
+        }
+        map.insert(
+            "norm.mean".into(),
+            Tensor::from_slice(&self.norm.mean, self.obs_dim, &Device::Cpu)?,
+        );
+        map.insert(
+            "norm.var".into(),
+            Tensor::from_slice(&self.norm.var, self.obs_dim, &Device::Cpu)?,
+        );
+        let side = Sidecar {
+            format: 1,
+            obs_dim: self.obs_dim,
+            act_dim: self.act_dim,
+            config: self.cfg.clone(),
+            adam_step: self.adam.step,
+            norm_count: self.norm.count,
+        };
+        let sp = Self::sidecar_path(path);
+        let tmp_w = tmp_name(path);
+        let tmp_s = tmp_name(&sp);
+        candle_core::safetensors::save(&map, &tmp_w)
+            .with_context(|| format!("writing {}", tmp_w.display()))?;
+        std::fs::write(&tmp_s, serde_json::to_vec_pretty(&side)?)
+            .with_context(|| format!("writing {}", tmp_s.display()))?;
+        std::fs::rename(&tmp_w, path)?;
+        std::fs::rename(&tmp_s, &sp)?;
+        Ok(())
+    }
+
+    /// Load a checkpoint written by [`Agent::save`] onto `dev`.
+    pub fn load(path: &Path, dev: &Device) -> Result<Agent> {
+        let sp = Self::sidecar_path(path);
+        let side: Sidecar = serde_json::from_slice(
+            &std::fs::read(&sp).with_context(|| format!("reading {}", sp.display()))?,
+        )
+        .with_context(|| format!("parsing {}", sp.display()))?;
+        ensure!(
+            side.format == 1,
+            "checkpoint format {} unknown",
+            side.format
+        );
+        let map = candle_core::safetensors::load(path, dev)
+            .with_context(|| format!("reading {}", path.display()))?;
+        let mut agent = Agent::new(side.obs_dim, side.act_dim, &side.config, 0, dev)?;
+        let get = |k: &str| {
+            map.get(k)
+                .with_context(|| format!("checkpoint: `{k}` missing"))
+        };
+        for (k, (name, var)) in agent.vars.iter().enumerate() {
+            let w = get(name)?;
+            ensure!(
+                w.dims() == var.dims(),
+                "checkpoint: `{name}` shape {:?}",
+                w.dims()
+            );
+            var.set(w)?;
+            agent.adam.m[k] = get(&format!("adam.m.{name}"))?.clone();
+            agent.adam.v[k] = get(&format!("adam.v.{name}"))?.clone();
+        }
+        agent.adam.step = side.adam_step;
+        agent.norm = RunningNorm {
+            mean: get("norm.mean")?.to_vec1::<f64>()?,
+            var: get("norm.var")?.to_vec1::<f64>()?,
+            count: side.norm_count,
+        };
+        ensure!(
+            agent.norm.dim() == side.obs_dim,
+            "checkpoint: normaliser size"
+        );
+        Ok(agent)
+    }
+}
+
+fn tmp_name(p: &Path) -> PathBuf {
+    let mut s = p.as_os_str().to_owned();
+    s.push(".tmp");
+    PathBuf::from(s)
+}
