@@ -1,6 +1,7 @@
 //! Networks in candle: the only code (with `rl/`, the PPO core) that touches
 //! candle. Layers are built with seeded, PyTorch-style initial weights
-//! (uniform in +-1/sqrt(fan_in), biases too), because candle's own
+//! (uniform in +-1/sqrt(fan_in), biases too, unless [`MlpInit`] says
+//! otherwise), because candle's own
 //! initialisers draw from an unseeded generator and start far larger
 //! (measured: saturated outputs), and runs must repeat for a seed.
 
@@ -48,9 +49,14 @@ impl Params {
         dev: &Device,
     ) -> Result<Tensor> {
         let n: usize = shape.iter().product();
-        let data: Vec<f32> = (0..n)
-            .map(|_| rng.random_range(-bound..bound) as f32)
-            .collect();
+        // a zero bound gives zeros and draws nothing
+        let data: Vec<f32> = if bound > 0.0 {
+            (0..n)
+                .map(|_| rng.random_range(-bound..bound) as f32)
+                .collect()
+        } else {
+            vec![0.0; n]
+        };
         let var = Var::from_tensor(&Tensor::from_vec(data, shape, dev)?)?;
         let t = var.as_tensor().clone();
         self.vars.insert(name, var);
@@ -67,8 +73,22 @@ impl Params {
         dev: &Device,
     ) -> Result<Linear> {
         let b = 1.0 / (inp as f64).sqrt();
-        let w = self.uniform(format!("{prefix}.weight"), &[out, inp], b, rng, dev)?;
-        let bias = self.uniform(format!("{prefix}.bias"), &[out], b, rng, dev)?;
+        self.linear_init(prefix, inp, out, [b, b], rng, dev)
+    }
+
+    /// A linear layer with weights in `U(-bounds[0], bounds[0])` and biases
+    /// in `U(-bounds[1], bounds[1])` (a zero bound: zeros, nothing drawn).
+    pub fn linear_init(
+        &mut self,
+        prefix: &str,
+        inp: usize,
+        out: usize,
+        bounds: [f64; 2],
+        rng: &mut ChaCha8Rng,
+        dev: &Device,
+    ) -> Result<Linear> {
+        let w = self.uniform(format!("{prefix}.weight"), &[out, inp], bounds[0], rng, dev)?;
+        let bias = self.uniform(format!("{prefix}.bias"), &[out], bounds[1], rng, dev)?;
         Ok(Linear::new(w, Some(bias)))
     }
 
@@ -94,6 +114,14 @@ impl Params {
             ..Default::default()
         };
         Ok(Conv1d::new(w, Some(bias), cfg))
+    }
+
+    /// Every variable with its name, in name order.
+    pub fn named(&self) -> Vec<(String, Var)> {
+        self.vars
+            .iter()
+            .map(|(k, v)| (k.clone(), v.clone()))
+            .collect()
     }
 
     /// Every variable, in name order (for the optimiser).
@@ -146,13 +174,52 @@ impl Mlp {
         let mut sizes = vec![inp];
         sizes.extend_from_slice(hidden);
         sizes.push(out);
+        Mlp::with_init(p, prefix, &sizes, MlpInit::default(), rng, dev)
+    }
+
+    /// An MLP over layer `sizes` (input, hidden..., output) started as
+    /// `init` says.
+    pub fn with_init(
+        p: &mut Params,
+        prefix: &str,
+        sizes: &[usize],
+        init: MlpInit,
+        rng: &mut ChaCha8Rng,
+        dev: &Device,
+    ) -> Result<Mlp> {
+        let n = sizes.len() - 1;
         let layers = sizes
             .windows(2)
             .enumerate()
-            .map(|(i, w)| p.linear(&format!("{prefix}.{i}"), w[0], w[1], rng, dev))
+            .map(|(i, w)| {
+                let default = 1.0 / (w[0] as f64).sqrt();
+                let weight = match init.out_bound {
+                    Some(b) if i + 1 == n => b,
+                    _ => default,
+                };
+                let bias = if init.zero_bias { 0.0 } else { default };
+                p.linear_init(
+                    &format!("{prefix}.{i}"),
+                    w[0],
+                    w[1],
+                    [weight, bias],
+                    rng,
+                    dev,
+                )
+            })
             .collect::<Result<Vec<_>>>()?;
         Ok(Mlp { layers })
     }
+}
+
+/// How an [`Mlp`] starts. The default is PyTorch's: weights and biases in
+/// `U(+-1/sqrt(fan_in))`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MlpInit {
+    /// Output-layer weights in `U(-b, b)` instead of the default.
+    pub out_bound: Option<f64>,
+    /// All biases 0.
+    pub zero_bias: bool,
 }
 
 impl Module for Mlp {

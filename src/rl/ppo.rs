@@ -39,8 +39,10 @@
 //! the same seed and thread count.
 
 use super::norm::RunningNorm;
+use crate::nn::{Mlp, MlpInit, Params};
 use anyhow::{bail, ensure, Context, Result};
-use candle_core::{DType, Device, Tensor, Var, D};
+use candle_core::{Device, Tensor, Var, D};
+use candle_nn::Module;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -137,74 +139,6 @@ impl PpoConfig {
             "ppo: hidden sizes must be > 0"
         );
         Ok(())
-    }
-}
-
-/// One linear layer's variables.
-struct Dense {
-    w: Var,
-    b: Var,
-}
-
-/// A ReLU MLP over named variables `prefix.i.weight` / `prefix.i.bias`.
-struct Net {
-    layers: Vec<Dense>,
-}
-
-impl Net {
-    /// Hidden layers `U(±1/sqrt(fan_in))`, head `U(±out_bound)` (or the
-    /// same default), all biases 0.
-    fn new(
-        sizes: &[usize],
-        out_bound: Option<f64>,
-        rng: &mut ChaCha8Rng,
-        dev: &Device,
-    ) -> Result<Net> {
-        let nl = sizes.len() - 1;
-        let mut layers = Vec::with_capacity(nl);
-        for (i, w) in sizes.windows(2).enumerate() {
-            let (inp, out) = (w[0], w[1]);
-            let bound = match out_bound {
-                Some(b) if i + 1 == nl => b,
-                _ => 1.0 / (inp as f64).sqrt(),
-            };
-            let data: Vec<f32> = (0..inp * out)
-                .map(|_| {
-                    if bound > 0.0 {
-                        rng.random_range(-bound..bound) as f32
-                    } else {
-                        0.0
-                    }
-                })
-                .collect();
-            let w = Var::from_tensor(&Tensor::from_vec(data, (out, inp), dev)?)?;
-            let b = Var::zeros(out, DType::F32, dev)?;
-            layers.push(Dense { w, b });
-        }
-        Ok(Net { layers })
-    }
-
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        let mut h = x.clone();
-        let n = self.layers.len();
-        for (i, l) in self.layers.iter().enumerate() {
-            h = h
-                .matmul(&l.w.as_tensor().t()?)?
-                .broadcast_add(l.b.as_tensor())?;
-            if i + 1 < n {
-                h = h.relu()?;
-            }
-        }
-        Ok(h)
-    }
-
-    fn named(&self, prefix: &str) -> Vec<(String, Var)> {
-        let mut v = Vec::new();
-        for (i, l) in self.layers.iter().enumerate() {
-            v.push((format!("{prefix}.{i}.weight"), l.w.clone()));
-            v.push((format!("{prefix}.{i}.bias"), l.b.clone()));
-        }
-        v
     }
 }
 
@@ -504,8 +438,9 @@ pub struct Agent {
     obs_dim: usize,
     act_dim: usize,
     std: f64,
-    pi: Net,
-    vf: Net,
+    pi: Mlp,
+    vf: Mlp,
+    /// Every weight by name (the optimiser's and the checkpoint's order).
     vars: Vec<(String, Var)>,
     adam: Adam,
     norm: RunningNorm,
@@ -531,11 +466,19 @@ impl Agent {
         let mut sizes = vec![obs_dim];
         sizes.extend_from_slice(&cfg.hidden);
         sizes.push(act_dim);
-        let pi = Net::new(&sizes, cfg.policy_out_bound, &mut rng, dev)?;
+        let mut params = Params::default();
+        let init = MlpInit {
+            out_bound: cfg.policy_out_bound,
+            zero_bias: true,
+        };
+        let pi = Mlp::with_init(&mut params, "pi", &sizes, init, &mut rng, dev)?;
         *sizes.last_mut().expect("sizes") = 1;
-        let vf = Net::new(&sizes, None, &mut rng, dev)?;
-        let mut vars = pi.named("pi");
-        vars.extend(vf.named("vf"));
+        let init = MlpInit {
+            out_bound: None,
+            zero_bias: true,
+        };
+        let vf = Mlp::with_init(&mut params, "vf", &sizes, init, &mut rng, dev)?;
+        let vars = params.named();
         let adam = Adam::new(&vars)?;
         Ok(Agent {
             std: cfg.std(),
