@@ -67,8 +67,6 @@ pub struct SimOptions {
     pub pgs_iterations: usize,
     /// rapier internal stabilisation (position correction) iterations.
     pub stabilization_iterations: usize,
-    /// Warm-start joint impulses from the previous step (rapier's default off).
-    pub warmstart_joints: bool,
     /// rapier's contact recycling (reuse a pair's contact points while it
     /// moved less than 5 cm; rapier's default, faster).
     pub contact_recycling: bool,
@@ -114,7 +112,6 @@ impl Default for SimOptions {
             pgs_iterations: 4,
             stabilization_iterations: 1,
             contact_recycling: true,
-            warmstart_joints: false,
             armature_inertia: true,
             min_mass: 0.5,
             hand_min_mass: 0.05,
@@ -210,6 +207,12 @@ impl ContactReport {
                 .any(|&b| self.body_force[b].iter().any(|f| f.abs() >= 0.1)),
         }
     }
+}
+
+/// A pair touches when it pushes: contacts merely predicted (within
+/// `prediction_distance`, not yet touching) carry no impulse.
+fn touching(pair: &ContactPair) -> bool {
+    pair.has_any_active_contact() && pair.total_impulse_magnitude() > 0.0
 }
 
 /// The humanoid's fixed description, shared by every world built from it.
@@ -330,7 +333,6 @@ impl World {
         ip.num_internal_pgs_iterations = opts.pgs_iterations.max(1);
         ip.num_internal_stabilization_iterations = opts.stabilization_iterations;
         ip.contact_recycling = opts.contact_recycling;
-        ip.warmstart_joints = opts.warmstart_joints;
         ip.normalized_prediction_distance = opts.prediction_distance;
         ip.static_contact_softness.natural_frequency = opts.ground_contact_hz;
         ip.normalized_max_corrective_velocity = opts.max_depenetration_velocity;
@@ -380,16 +382,15 @@ impl World {
                 0.0
             };
             if extra_mass > 0.0 || extra_inertia > 0.0 {
-                pw.bodies[h].set_additional_mass_properties(
+                let body = &mut pw.bodies[h];
+                body.set_additional_mass_properties(
                     MassProperties::new(com, extra_mass, Vector::splat(extra_inertia)),
                     false,
                 );
+                body.recompute_mass_properties_from_colliders(&pw.colliders);
             }
             bodies.push(h);
         }
-        pw.bodies
-            .iter_mut()
-            .for_each(|(_, b)| b.recompute_mass_properties_from_colliders(&pw.colliders));
 
         // Joints.
         let mut joints = Vec::with_capacity(n - 1);
@@ -431,23 +432,24 @@ impl World {
             joints.push(pw.impulse_joints.insert(parent, bodies[i], jb, true));
         }
 
-        // Collision groups: 1 = humanoid, 2 and 3 = the two hands.
-        let hand_group = |i: usize| -> Option<Group> {
-            if !sk.hand[i] {
-                return None;
-            }
-            // which hand: follow parents up to the wrist
-            let mut w = i;
-            while let Some(p) = sk.parents[w].filter(|&p| sk.hand[p]) {
-                w = p;
-            }
-            let first_wrist = (0..n).find(|&k| sk.hand[k]).unwrap_or(w);
-            Some(if w == first_wrist {
-                Group::GROUP_2
-            } else {
-                Group::GROUP_3
-            })
-        };
+        // Collision groups: 1 = humanoid, 2 and 3 = the two hands (a wrist
+        // starts a hand; its descendants are in it).
+        let mut hand_group: Vec<Option<Group>> = vec![None; n];
+        let mut wrists = 0;
+        for i in 0..n {
+            hand_group[i] = match sk.parents[i].and_then(|p| hand_group[p]) {
+                Some(g) => Some(g),
+                None if sk.hand[i] => {
+                    wrists += 1;
+                    Some(if wrists == 1 {
+                        Group::GROUP_2
+                    } else {
+                        Group::GROUP_3
+                    })
+                }
+                None => None,
+            };
+        }
         for (_, c) in pw.colliders.iter_mut() {
             let Part::Body(i) = Part::of_tag(c.user_data) else {
                 continue;
@@ -457,7 +459,7 @@ impl World {
             if !opts.self_collision {
                 filter ^= Group::GROUP_1;
             }
-            if let Some(h) = hand_group(i) {
+            if let Some(h) = hand_group[i] {
                 member |= h;
                 if !opts.hand_self_collision {
                     filter ^= h;
@@ -554,38 +556,44 @@ impl World {
             self.targets.len(),
             "one target triple per joint"
         );
-        for (j, (&h, t)) in self.joints.iter().zip(targets.chunks_exact(3)).enumerate() {
-            let old = &mut self.targets[3 * j..3 * j + 3];
-            if old == t {
-                continue;
-            }
-            old.copy_from_slice(t);
-            let angles = rot::motor_angles(vec_of(t));
-            let g = self.sk.gains[j];
-            let joint = self
-                .pw
-                .impulse_joints
-                .get_mut(h, false)
-                .expect("joint handle");
-            for (a, axis) in [JointAxis::AngX, JointAxis::AngY, JointAxis::AngZ]
-                .into_iter()
-                .enumerate()
-            {
-                joint
-                    .data
-                    .set_motor_position(axis, angles[a], g[a][0], g[a][1]);
-            }
+        for (j, t) in targets.chunks_exact(3).enumerate() {
+            self.set_joint_target(j, [t[0], t[1], t[2]]);
         }
     }
 
     /// Set the targets from a policy action: target = pi * clamp(a, -1, 1)
     /// (reference §2.3).
     pub fn apply_action(&mut self, action: &[f32]) {
-        let t: Vec<f32> = action
-            .iter()
-            .map(|a| std::f32::consts::PI * a.clamp(-1.0, 1.0))
-            .collect();
-        self.set_joint_targets(&t);
+        assert_eq!(action.len(), self.targets.len(), "one action per DoF");
+        let t = |a: f32| std::f32::consts::PI * a.clamp(-1.0, 1.0);
+        for (j, a) in action.chunks_exact(3).enumerate() {
+            self.set_joint_target(j, [t(a[0]), t(a[1]), t(a[2])]);
+        }
+    }
+
+    /// Set joint `j`'s motor target; an unchanged target leaves the joint
+    /// alone (touching a joint makes rapier rebuild its solver caches).
+    fn set_joint_target(&mut self, j: usize, t: [f32; 3]) {
+        let old = &mut self.targets[3 * j..3 * j + 3];
+        if *old == t {
+            return;
+        }
+        old.copy_from_slice(&t);
+        let angles = rot::motor_angles(vec_of(&t));
+        let g = self.sk.gains[j];
+        let joint = self
+            .pw
+            .impulse_joints
+            .get_mut(self.joints[j], false)
+            .expect("joint handle");
+        for (a, axis) in [JointAxis::AngX, JointAxis::AngY, JointAxis::AngZ]
+            .into_iter()
+            .enumerate()
+        {
+            joint
+                .data
+                .set_motor_position(axis, angles[a], g[a][0], g[a][1]);
+        }
     }
 
     /// Current motor targets.
@@ -795,11 +803,29 @@ impl World {
             s.obj_angvel
                 .extend_from_slice(&arr3(self.state_angvel(r, b.angvel())));
         }
-        if !self.objects.is_empty() {
-            let c = self.contacts();
-            s.contact = c.object_hands[0] || c.object_body[0];
-        }
+        s.contact = self.object_touches_humanoid(0);
         s
+    }
+
+    /// Whether object `k` touches a humanoid body (false without object `k`).
+    fn object_touches_humanoid(&self, k: usize) -> bool {
+        let Some(&h) = self.objects.get(k) else {
+            return false;
+        };
+        let colliders = &self.pw.colliders;
+        self.pw.bodies[h].colliders().iter().any(|&c| {
+            self.pw.narrow_phase.contact_pairs_with(c).any(|pair| {
+                let other = if pair.collider1 == c {
+                    pair.collider2
+                } else {
+                    pair.collider1
+                };
+                touching(pair)
+                    && colliders
+                        .get(other)
+                        .is_some_and(|o| matches!(Part::of_tag(o.user_data), Part::Body(_)))
+            })
+        })
     }
 
     /// Contact forces and indicators of the last physics step.
@@ -816,9 +842,7 @@ impl World {
         let inv_dt = self.pw.integration_parameters.inv_dt();
         let colliders = &self.pw.colliders;
         for pair in self.pw.narrow_phase.contact_pairs() {
-            // touching = a non-zero impulse; contacts merely predicted (within
-            // `prediction_distance`, not yet touching) push nothing
-            if !pair.has_any_active_contact() || pair.total_impulse_magnitude() <= 0.0 {
+            if !touching(pair) {
                 continue;
             }
             let (Some(c1), Some(c2)) =
