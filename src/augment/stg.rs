@@ -285,14 +285,16 @@ pub fn build(lib: &MotionLib, w: &Weights, p: &StgParams) -> (Vec<Edge>, Vec<Ski
                 align_dy: dy as f32,
             })
         };
+        // every valid frame of clip c
+        let frames_of = |c: usize| {
+            (0..lib.frames[c].frames)
+                .filter(move |f| canons[c][*f].is_some())
+                .map(move |f| (c, f))
+        };
         if !p.per_target {
             let sources: Vec<(usize, usize)> = (0..lib.clips.len())
                 .filter(|c| lib.clips[*c].skill != *a)
-                .flat_map(|c| {
-                    (0..lib.frames[c].frames)
-                        .filter(move |f| canons[c][*f].is_some())
-                        .map(move |f| (c, f))
-                })
+                .flat_map(frames_of)
                 .collect();
             states = sources.len() as u32;
             let found: Vec<Option<Edge>> = sources
@@ -305,19 +307,12 @@ pub fn build(lib: &MotionLib, w: &Weights, p: &StgParams) -> (Vec<Edge>, Vec<Ski
                 .collect();
             kept.extend(found.into_iter().flatten());
         } else {
+            let targets: Vec<(usize, usize)> = a_clips.iter().flat_map(|&c| frames_of(c)).collect();
             for b in skills.iter().filter(|b| *b != a) {
                 let b_cands: Vec<(usize, usize)> = lib
                     .clips_of(b)
                     .into_iter()
                     .flat_map(|c| candidates(lib, c).into_iter().map(move |f| (c, f)))
-                    .collect();
-                let targets: Vec<(usize, usize)> = a_clips
-                    .iter()
-                    .flat_map(|&c| {
-                        (0..lib.frames[c].frames)
-                            .filter(move |f| canons[c][*f].is_some())
-                            .map(move |f| (c, f))
-                    })
                     .collect();
                 states += targets.len() as u32;
                 let found: Vec<Option<Edge>> = targets
