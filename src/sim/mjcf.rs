@@ -99,10 +99,12 @@ impl Model {
     }
 
     /// A copy without the bodies for which `drop` is true, nor their
-    /// descendants (for example the fingers, for a lighter model).
-    pub fn without(&self, drop: impl Fn(&Body) -> bool) -> Model {
+    /// descendants (for example the fingers, for a lighter model), and the
+    /// original index of each body kept.
+    pub fn without(&self, drop: impl Fn(&Body) -> bool) -> (Model, Vec<usize>) {
         let mut new_index = vec![None; self.bodies.len()];
         let mut bodies = Vec::new();
+        let mut kept = Vec::new();
         for (i, b) in self.bodies.iter().enumerate() {
             let parent = match b.parent {
                 None => None,
@@ -115,12 +117,13 @@ impl Model {
                 continue;
             }
             new_index[i] = Some(bodies.len());
+            kept.push(i);
             bodies.push(Body {
                 parent,
                 ..b.clone()
             });
         }
-        Model { bodies }
+        (Model { bodies }, kept)
     }
 
     /// The model for a skeleton from the data root's `assets/mjcf`, checked

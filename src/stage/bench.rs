@@ -159,12 +159,7 @@ fn sim(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
     let root = crate::dataset::data_root(data_root.as_deref())?;
     let full = Model::for_skeleton(&root, lib.skeleton)?;
     let hands = crate::sim::world::hand_bodies(&full);
-    let finger = |b: &crate::sim::mjcf::Body| b.parent.is_some_and(|p| hands[p]);
-    let no_fingers = full.without(finger);
-    // original index of each kept body
-    let kept: Vec<usize> = (0..full.bodies.len())
-        .filter(|&i| !finger(&full.bodies[i]))
-        .collect();
+    let (no_fingers, kept) = full.without(|b| b.parent.is_some_and(|p| hands[p]));
     let run = lib.clips_of("run");
     let clip = run.first().copied().unwrap_or(0);
     let s = lib
