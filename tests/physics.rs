@@ -154,8 +154,14 @@ fn sixty_four_worlds_under_random_actions_stay_sane_for_ten_seconds() {
     let opts = SimOptions::default();
     let n = 64;
     let mut env = VecEnv::new(&model, &[ObjectSpec::ball()], &opts, n).unwrap();
-    let start = lib.state(0, 10).unwrap();
-    env.for_each(|_, w| w.set_state(&start).unwrap());
+    // every world starts from its own frame, spread over all clips
+    let starts: Vec<_> = (0..n)
+        .map(|i| {
+            let c = i % lib.clips.len();
+            lib.state(c, (10 + 7 * i) % lib.frames[c].frames).unwrap()
+        })
+        .collect();
+    env.for_each(|i, w| w.set_state(&starts[i]).unwrap());
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     let a = env.action_dim();
     let policy_steps = (10.0 / opts.policy_dt() as f64).round() as usize;
