@@ -23,13 +23,15 @@ pub enum Command {
     SampleStf(SampleStfArgs),
     /// Pre-train the history encoder by behaviour cloning (he.safetensors)
     PretrainHe(PretrainHeArgs),
+    /// Train a skill policy with PPO on the simulated humanoid (train_metrics.parquet, policy.safetensors)
+    Train(TrainArgs),
     /// Forward kinematics of the MJCF humanoid against the clips' body positions
     CheckFk(StageArgs),
     /// Summarise a skillaug Parquet file: rows, clips, skills, frames, value ranges
     Inspect(InspectArgs),
     /// Print a table's schema, one field per line
     Schema(SchemaArgs),
-    /// Run a benchmark and print its figures (ingest)
+    /// Run a benchmark and print its figures (ingest, sim, train)
     Bench(BenchArgs),
 }
 
@@ -93,7 +95,7 @@ pub struct SchemaArgs {
 /// `skillaug bench`.
 #[derive(Debug, Args)]
 pub struct BenchArgs {
-    /// Benchmark name (ingest).
+    /// Benchmark name: ingest, sim or train.
     pub name: String,
     /// Repetitions; the median is reported.
     #[arg(long, default_value_t = 5)]
@@ -120,6 +122,38 @@ pub struct SampleStfArgs {
     #[command(flatten)]
     #[allow(missing_docs)]
     pub common: StageArgs,
+}
+
+/// `skillaug train`.
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub common: StageArgs,
+    /// Training reward: sm (SkillMimic) or dm (DeepMimic); overrides train.method.
+    #[arg(long, value_name = "sm|dm")]
+    pub method: Option<String>,
+    /// epsilon-NSI: neighbourhood starts without the connection rule.
+    #[arg(long)]
+    pub nsi: bool,
+    /// Starts from the Stitched Trajectory Graph (needs build-stg).
+    #[arg(long)]
+    pub stg: bool,
+    /// State Transition Field starts (neighbourhood + connection with masked states).
+    #[arg(long)]
+    pub stf: bool,
+    /// Adaptive Trajectory Sampling.
+    #[arg(long)]
+    pub ats: bool,
+    /// History-encoder embedding in the observation (needs pretrain-he).
+    #[arg(long)]
+    pub he: bool,
+    /// Compute device for the networks: cpu (default), or cuda / cuda:N with the `cuda` feature.
+    #[arg(long)]
+    pub device: Option<String>,
+    /// Continue from the checkpoint in --out.
+    #[arg(long)]
+    pub resume: bool,
 }
 
 /// `skillaug pretrain-he`.

@@ -33,6 +33,25 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::PretrainHe(a) => {
             stage::pretrain_he::run(&stage::Common::new(a.common)?, a.device.as_deref())
         }
+        Command::Train(a) => {
+            let method = match a.method.as_deref() {
+                None => None,
+                Some("sm") => Some(rl::humanoid::Method::Sm),
+                Some("dm") => Some(rl::humanoid::Method::Dm),
+                Some(o) => anyhow::bail!("--method {o}: expected sm or dm"),
+            };
+            let sw = stage::train::Switches {
+                method,
+                nsi: a.nsi,
+                stg: a.stg,
+                stf: a.stf,
+                ats: a.ats,
+                he: a.he,
+                device: a.device,
+                resume: a.resume,
+            };
+            stage::train::run(&stage::Common::new(a.common)?, &sw)
+        }
         Command::CheckFk(a) => stage::check_fk::run(&stage::Common::new(a)?),
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => stage::schema::run(&a.name),

@@ -196,6 +196,29 @@ impl Ats {
         };
     }
 
+    /// Every visited (clip, frame) with its statistic and visit count (a
+    /// checkpoint of the table; [`Ats::restore_stat`] puts them back).
+    pub fn visited(&self) -> Vec<(usize, usize, f64, u64)> {
+        let mut v = Vec::new();
+        for (c, row) in self.mean.iter().enumerate() {
+            for (f, m) in row.iter().enumerate() {
+                if !m.is_nan() {
+                    v.push((c, f, *m, self.visits[c][f]));
+                }
+            }
+        }
+        v
+    }
+
+    /// Set the statistic and visit count of (clip, frame) exactly.
+    /// Out-of-range indices are ignored.
+    pub fn restore_stat(&mut self, clip: usize, frame: usize, mean: f64, visits: u64) {
+        if let Some(m) = self.mean.get_mut(clip).and_then(|m| m.get_mut(frame)) {
+            *m = mean;
+            self.visits[clip][frame] = visits;
+        }
+    }
+
     /// The statistic of (clip, frame); `None` if never visited.
     pub fn mean_reward(&self, clip: usize, frame: usize) -> Option<f64> {
         let m = *self.mean.get(clip)?.get(frame)?;

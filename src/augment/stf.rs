@@ -238,7 +238,7 @@ impl StfParams {
 }
 
 /// Where the start state came from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum StartKind {
     /// A frame of the target skill (reference state initialisation via ATS).
     Rsi,
@@ -247,7 +247,7 @@ pub enum StartKind {
 }
 
 /// One step of a sampled trajectory.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Step {
     /// No reward at this step: an inserted state s∅ or a missing reference frame.
     pub masked: bool,
@@ -265,7 +265,7 @@ impl Step {
 }
 
 /// A trajectory sampled from the STF.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Trajectory {
     /// Skill A.
     pub target_skill: String,
@@ -718,6 +718,14 @@ impl<'a> StfSampler<'a> {
             }
         }
         best
+    }
+
+    /// Steps that follow clip `clip` from `first` on with no masked state:
+    /// the start, then `first`, `first + 1`, ... (at most `horizon` policy
+    /// steps). The trainer uses it for a start that is a reference frame
+    /// itself and for ε-NSI without the connection rule.
+    pub fn follow(&self, clip: usize, first: usize, horizon: usize) -> Vec<Step> {
+        self.steps((clip, first), 0, Connect::Paper, horizon)
     }
 
     /// The steps after connecting to `j` with `n` masked states.

@@ -7,7 +7,7 @@ use super::clip::ClipFrames;
 /// Root, joint, body and object state of one frame. Quaternions are
 /// (x, y, z, w); widths depend on the skeleton (J joints, B bodies) and the
 /// number of objects O.
-#[derive(Clone, Debug, PartialEq, Default)]
+#[derive(Clone, Debug, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct State {
     /// Root world position, m.
     pub root_pos: [f32; 3],

@@ -14,6 +14,7 @@
 //! normalisation clamped to ±5, and timeouts bootstrapped from the value of
 //! the episode's last state while terminations are not.
 
+pub mod humanoid;
 pub mod norm;
 pub mod pointmass;
 pub mod ppo;

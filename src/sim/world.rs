@@ -739,6 +739,11 @@ impl World {
         self.pw.bodies[self.bodies[0]].translation().z
     }
 
+    /// World-frame angular velocity of object `k`, rad/s.
+    pub fn object_angvel_world(&self, k: usize) -> [f32; 3] {
+        arr3(self.pw.bodies[self.objects[k]].angvel())
+    }
+
     /// World rotation of body `i`.
     pub fn body_rotation(&self, i: usize) -> [f32; 4] {
         q4(*self.pw.bodies[self.bodies[i]].rotation())

@@ -4,6 +4,13 @@
 //! clip in the data root) into a temporary folder, `--repeat` times, and prints
 //! the median wall time per dataset and in total, with the throughput.
 //!
+//! `bench train` runs whole PPO iterations of `skillaug train` on the
+//! Dribble-Forward clips (512 environments x 32 steps = 16,384 samples per
+//! iteration) with the CPU preset (256-256 networks, minibatch 4,096) and
+//! with the paper's networks (1024-512-512, minibatch 16,384), and prints
+//! end-to-end samples per second split into simulation (physics,
+//! observation, reward, resets), inference and the PPO update.
+//!
 //! `bench sim` steps the rapier3d humanoid (with the ball and contacts) on
 //! one thread and on every thread of the pool, for the full 53-body model
 //! and for a 23-body variant without finger bodies, and prints physics
@@ -30,7 +37,8 @@ pub fn run(what: &str, repeat: usize, data_root: Option<PathBuf>) -> Result<()> 
     match what {
         "ingest" => ingest(repeat.max(1), data_root),
         "sim" => sim(repeat.max(1), data_root),
-        other => bail!("unknown benchmark `{other}` (known: ingest, sim)"),
+        "train" => train(repeat.max(1), data_root),
+        other => bail!("unknown benchmark `{other}` (known: ingest, sim, train)"),
     }
 }
 
@@ -206,5 +214,67 @@ fn sim(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
     println!(
         "physics steps of {worlds} worlds x {policy_steps} policy steps x 2 substeps (120 Hz), ball and contacts on; median of {repeat}"
     );
+    Ok(())
+}
+
+fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
+    use super::train::{environment, setup, Preset, Timed, TrainConfig};
+    use crate::rl::{collect, Agent, EpisodeTracker, VecEnv as _};
+    use rand::SeedableRng;
+    let tmp = tempfile::tempdir()?;
+    let out = tmp.path().join("ballplay");
+    let common = super::Common::new(stage_args(out.clone(), "ballplay", data_root))?;
+    super::ingest::run(&common, false)?;
+    println!(
+        "{:<26} {:>10} {:>12} {:>10} {:>10} {:>10}   ({} threads, {repeat} iterations each)",
+        "preset",
+        "samples/s",
+        "sim us/samp",
+        "act us",
+        "update us",
+        "sim share",
+        rayon::current_num_threads()
+    );
+    for (name, preset) in [
+        ("cpu (256-256, mb 4096)", Preset::Cpu),
+        ("paper nets (1024-512-512)", Preset::Paper),
+    ] {
+        let cfg = TrainConfig {
+            skills: vec!["run".into()],
+            preset,
+            num_envs: Some(512),
+            horizon: Some(32),
+            ..TrainConfig::default()
+        };
+        let s = setup(&common, &cfg)?;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+        let mut env = environment(&s, &cfg, None, cfg.envs(), &mut rng)?;
+        let mut agent = Agent::new(env.obs_dim(), env.act_dim(), &cfg.ppo_config(), 0, &crate::nn::device("cpu")?)?;
+        let mut tracker = EpisodeTracker::new(cfg.envs());
+        let (mut sim, mut act, mut upd, mut total, mut samples) = (0.0, 0.0, 0.0, 0.0, 0usize);
+        for _ in 0..repeat {
+            let t0 = Instant::now();
+            let mut timed = Timed { env: &mut env, secs: 0.0 };
+            let ro = collect(&agent, &mut timed, cfg.steps(), &mut tracker, &mut rng)?;
+            let sim_s = timed.secs;
+            let c = t0.elapsed().as_secs_f64();
+            let t1 = Instant::now();
+            agent.update(&ro, &mut rng)?;
+            upd += t1.elapsed().as_secs_f64();
+            sim += sim_s;
+            act += c - sim_s;
+            total += t0.elapsed().as_secs_f64();
+            samples += cfg.envs() * cfg.steps();
+        }
+        let us = |x: f64| 1e6 * x / samples as f64;
+        println!(
+            "{name:<26} {:>10.0} {:>12.0} {:>10.0} {:>10.0} {:>9.0}%",
+            samples as f64 / total,
+            us(sim),
+            us(act),
+            us(upd),
+            100.0 * sim / total
+        );
+    }
     Ok(())
 }

@@ -9,6 +9,7 @@ pub mod inspect;
 pub mod pretrain_he;
 pub mod sample_stf;
 pub mod schema;
+pub mod train;
 
 use crate::cli::StageArgs;
 use crate::config::{self, Recipe, SetArg};

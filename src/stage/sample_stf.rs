@@ -180,7 +180,7 @@ impl StfConfig {
 }
 
 /// Read and check the STG edges of `input` against its clips.
-fn load_edges(
+pub(crate) fn load_edges(
     input: &Path,
     lib: &crate::motion::MotionLib,
     p_e: f64,

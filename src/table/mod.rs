@@ -16,6 +16,7 @@ pub mod io;
 pub mod read_util;
 pub mod stf;
 pub mod stg;
+pub mod train;
 
 use arrow::datatypes::{DataType, Field, Schema};
 use std::sync::Arc;
@@ -146,6 +147,7 @@ pub const TABLES: &[&str] = &[
     "he_loss",
     "he_embeddings",
     "stf_samples",
+    "train_metrics",
 ];
 
 /// The columns of table `name`.
@@ -158,6 +160,7 @@ pub fn columns_of(name: &str) -> Option<Vec<ColumnSpec>> {
         "he_embeddings" => Some(he::embedding_columns()),
         "stg_summary" => Some(stg::summary_columns()),
         "stf_samples" => Some(stf::columns()),
+        "train_metrics" => Some(train::columns()),
         _ => None,
     }
 }

@@ -1,0 +1,911 @@
+//! The imitation environment of `skillaug train`: N rapier3d humanoids, each
+//! tracking a reference trajectory drawn from the motion library (plain
+//! reference state initialisation, ε-NSI, or State Transition Field and
+//! Stitched Trajectory Graph samples, with Adaptive Trajectory Sampling).
+//!
+//! Followed, with sources:
+//! - Observation: reference §3.1/§3.2 ([`obs_dim`], [`write_observation`]):
+//!   root height; bodies 1.. relative to the root, tan-norm rotations, linear
+//!   and angular velocities of every body, all in the heading frame; raw
+//!   world-frame net contact forces on the ten fingertips; per object its
+//!   heading-frame xy offset with absolute height, tan-norm rotation, linear
+//!   and angular velocity; a 64-slot one-hot of the skill class; optionally
+//!   the 3-D history embedding of the frozen encoder (§9.3: computed from the
+//!   60 feature frames *before* the current one is appended; at a reset the
+//!   history is the reference clip's frames before the start frame).
+//! - Reward: the paper's timing r_t = S(s_{t+1}, ŝ_{t+1}) (Eq. 12 with the
+//!   post-step state against the next reference frame), not the reference
+//!   code's one-step lag (§4.1). SM (Eqs. 12–17) or DM (Eq. 18) from
+//!   [`crate::reward`]; classes 0 and 10 (no object) use the body factor only
+//!   (§4.4). The SM reward is computed for every method too, as the common
+//!   yardstick of the training metrics.
+//! - Masked steps (inserted states s∅ and missing reference frames) carry no
+//!   reward of their own: by default their reward is the mean reward, at the
+//!   same step, of the unmasked environments tracking the same clip (else of
+//!   all unmasked ones, else 0), the reference code's rule (§7.4), so they
+//!   neither reward nor punish the value estimate; `masked-reward = "zero"`
+//!   gives 0 instead. They are left out of the reported mean rewards.
+//! - Episodes: at most T = `horizon` policy steps (60); a fall (root below
+//!   0.3 m after the first step) terminates except for class 0 (Getup),
+//!   §5.1; a reward-collapse termination is an option (off by default);
+//!   timeouts are truncations, bootstrapped by the trainer (§10.4).
+//! - Starts: [`StfSampler`] with the trainer's `p_e`/`p_n`. A start that is a
+//!   reference frame itself (β = 1) is followed by the next frame
+//!   ŝ_{j+1}: the paper's reward timing (Eq. 7 read literally would ask the
+//!   first step to stay at ŝ_j). ε-NSI without STF follows the centroid's
+//!   clip from the next frame with no connection and no masked state.
+//! - Classes 0 and 10 in a world with a ball: the ball is parked 10 m away
+//!   at rest (the reference code throws it to a random place, §5.2).
+//!
+//! Every episode runs in a freshly built world, so an episode depends only
+//! on its start and its actions: [`HumanoidEnv::snapshot`] and
+//! [`HumanoidEnv::restore`] rebuild the running episodes exactly from those
+//! (the trainer's checkpoints).
+
+use super::{StepResult, VecEnv};
+use crate::augment::ats::{Ats, AtsParams, AtsWeights, Update};
+use crate::augment::stf::{StartKind, StfParams, StfSampler, Trajectory};
+use crate::motion::{MotionLib, Skeleton, State};
+use crate::nn::he::{self, HistoryEncoder};
+use crate::reward::{self, DatasetKind, RewardOptions, Weights};
+use crate::sim::mjcf::Model;
+use crate::sim::{ContactReport, ObjectSpec, SimOptions, World};
+use anyhow::{bail, ensure, Context, Result};
+use candle_core::{Device, Tensor};
+use rand_chacha::ChaCha8Rng;
+use rapier3d::math::{Rotation, Vector};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Slots of the skill condition (one-hot of the class id).
+pub const CONDITION_SLOTS: usize = 64;
+
+/// Which imitation reward trains the policy.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// SkillMimic's multiplicative reward (Eqs. 12–17).
+    #[default]
+    Sm,
+    /// DeepMimic's additive reward (Eq. 18).
+    Dm,
+}
+
+/// The reward of a masked step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MaskedReward {
+    /// Mean of the unmasked environments on the same clip at this step (§7.4).
+    #[default]
+    ClipMean,
+    /// Zero.
+    Zero,
+}
+
+/// Environment settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnvConfig {
+    /// Training reward.
+    pub method: Method,
+    /// End an episode when the root falls below `fall_height`.
+    pub early_termination: bool,
+    /// Fall threshold, m (0.3).
+    pub fall_height: f32,
+    /// End an episode when an unmasked step's SM reward is below this (0 = off).
+    pub collapse_reward: f64,
+    /// Reward of masked steps.
+    pub masked_reward: MaskedReward,
+    /// SM reward options.
+    pub reward: RewardOptions,
+    /// ε-NSI baseline: noised starts follow their centroid's clip (no
+    /// connection rule, no masked states).
+    pub nsi_follow: bool,
+    /// ATS on (weights from the rollouts' rewards) or off (uniform).
+    pub ats: bool,
+    /// ATS exponents.
+    pub ats_params: AtsParams,
+    /// ATS statistic update.
+    pub ats_update: Update,
+}
+
+/// Observation size: reference §3.1 (902 for BallPlay, 905 with the history
+/// embedding) and §3.2.
+pub fn obs_dim(sk: Skeleton, n_objects: usize, he_dim: usize) -> usize {
+    let b = sk.n_bodies();
+    1 + 3 * (b - 1) + 6 * b + 3 * b + 3 * b + 30 + 15 * n_objects + CONDITION_SLOTS + he_dim
+}
+
+/// The ten fingertip bodies of the contact observation (contact-obs slots
+/// 0..9 = key-body slots 7..16).
+pub fn fingertips(sk: Skeleton) -> &'static [usize] {
+    &sk.key_bodies()[7..]
+}
+
+fn vec3(a: &[f32]) -> Vector {
+    Vector::new(a[0], a[1], a[2])
+}
+
+fn quat(a: &[f32]) -> Rotation {
+    Rotation::from_xyzw(a[0], a[1], a[2], a[3])
+}
+
+/// Tangent (rotated x) and normal (rotated z) of `q`.
+fn tan_norm(q: Rotation) -> [f32; 6] {
+    let t = q * Vector::X;
+    let n = q * Vector::Z;
+    [t.x, t.y, t.z, n.x, n.y, n.z]
+}
+
+/// Write the observation of `w` (in state `s`, after a step that produced
+/// `contacts`, or `None` right after a reset) for skill class `class` into
+/// `out` (length [`obs_dim`]); the history-embedding slots are left at 0.
+pub fn write_observation(
+    w: &World,
+    s: &State,
+    contacts: Option<&ContactReport>,
+    sk: Skeleton,
+    class: u32,
+    out: &mut [f32],
+) {
+    let mut rot = Vec::new();
+    let mut angvel = Vec::new();
+    w.body_frames(&mut rot, &mut angvel);
+    let nb = sk.n_bodies();
+    let inv = Rotation::from_rotation_z(-(reward::heading(s.root_rot) as f32));
+    let root = vec3(&s.root_pos);
+    out.fill(0.0);
+    let mut i = 0;
+    let mut put = |v: &[f32]| {
+        out[i..i + v.len()].copy_from_slice(v);
+        i += v.len();
+    };
+    put(&[s.root_pos[2]]);
+    for b in 1..nb {
+        put(&(inv * (vec3(&s.body_pos[3 * b..]) - root)).to_array());
+    }
+    for b in 0..nb {
+        put(&tan_norm(inv * quat(&rot[4 * b..])));
+    }
+    for b in 0..nb {
+        put(&(inv * vec3(&s.body_vel[3 * b..])).to_array());
+    }
+    for b in 0..nb {
+        put(&(inv * vec3(&angvel[3 * b..])).to_array());
+    }
+    for &f in fingertips(sk) {
+        put(&contacts.map_or([0.0; 3], |c| c.body_force[f]));
+    }
+    for k in 0..w.n_objects() {
+        let p = vec3(&s.obj_pos[3 * k..]);
+        let d = inv * (p - root);
+        put(&[d.x, d.y, p.z]);
+        put(&tan_norm(inv * quat(&s.obj_rot[4 * k..])));
+        put(&(inv * vec3(&s.obj_linvel[3 * k..])).to_array());
+        put(&(inv * Vector::from(w.object_angvel_world(k))).to_array());
+    }
+    let cond = i + (class as usize).min(CONDITION_SLOTS - 1);
+    out[cond] = 1.0;
+}
+
+/// The frozen history encoder and the standardised features of every
+/// reference frame (for the history at a reset).
+pub struct HeRuntime {
+    enc: HistoryEncoder,
+    feats: Vec<Vec<Option<Vec<f32>>>>,
+    dev: Device,
+}
+
+impl HeRuntime {
+    /// Wrap a loaded encoder for `lib`; refuses an encoder built for another skeleton.
+    pub fn new(enc: HistoryEncoder, lib: &MotionLib, dev: &Device) -> Result<HeRuntime> {
+        let cfg = &enc.cfg;
+        ensure!(
+            cfg.skeleton == lib.skeleton.name(),
+            "the history encoder was trained on skeleton `{}`, the clips use `{}`",
+            cfg.skeleton,
+            lib.skeleton.name()
+        );
+        let feats = he::clip_features(lib, cfg);
+        Ok(HeRuntime {
+            enc,
+            feats,
+            dev: dev.clone(),
+        })
+    }
+
+    /// Embedding size.
+    pub fn dim(&self) -> usize {
+        self.enc.cfg.embedding
+    }
+
+    fn k(&self) -> usize {
+        self.enc.cfg.history
+    }
+
+    fn c(&self) -> usize {
+        self.enc.cfg.channels
+    }
+
+    /// The standardised feature of a simulated state.
+    fn feature(&self, s: &State, sk: Skeleton) -> Vec<f32> {
+        let cfg = &self.enc.cfg;
+        he::feature(s, sk, cfg.n_objects)
+            .iter()
+            .zip(cfg.mean.iter().zip(&cfg.std))
+            .map(|(x, (m, sd))| (x - m) / sd)
+            .collect()
+    }
+
+    /// The history before frame `frame` of clip `clip`.
+    fn prefill(&self, clip: usize, frame: usize) -> Vec<f32> {
+        he::window(&self.feats[clip], frame, self.k(), self.c())
+    }
+
+    /// Embeddings of `windows` (`[n, k*C]` flattened).
+    fn encode(&self, windows: &[&[f32]]) -> Result<Vec<Vec<f32>>> {
+        if windows.is_empty() {
+            return Ok(Vec::new());
+        }
+        let flat: Vec<f32> = windows.iter().flat_map(|w| w.iter().copied()).collect();
+        let t = Tensor::from_vec(flat, (windows.len(), self.k(), self.c()), &self.dev)?;
+        Ok(self.enc.encode(&t)?.to_vec2::<f32>()?)
+    }
+}
+
+/// Push `f` as the newest frame of a `[k*C]` history.
+fn push_history(hist: &mut [f32], f: &[f32]) {
+    let c = f.len();
+    hist.copy_within(c.., 0);
+    let n = hist.len();
+    hist[n - c..].copy_from_slice(f);
+}
+
+/// One running episode.
+struct Episode {
+    traj: Trajectory,
+    class: u32,
+    /// Training-reward weights of this episode (object terms off for classes 0/10).
+    weights: Weights,
+    /// SM weights of this episode (the metric).
+    sm_weights: Weights,
+    /// (clip, frame) whose ATS statistic this episode updates.
+    ats_key: (usize, usize),
+    /// Policy steps taken.
+    t: usize,
+    prev_joint_vel: Vec<f32>,
+    /// Sum and count of the unmasked raw rewards (the ATS statistic).
+    sum: f64,
+    n: usize,
+    actions: Vec<f32>,
+    hist: Vec<f32>,
+}
+
+/// A running episode as the checkpoint stores it: its trajectory and the
+/// actions applied so far.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeRecord {
+    /// The sampled trajectory (start and reference steps).
+    pub traj: Trajectory,
+    /// (clip, frame) of its ATS statistic.
+    pub ats_key: (usize, usize),
+    /// Actions applied so far, `t * act_dim`.
+    pub actions: Vec<f32>,
+}
+
+/// What one environment reports after a step.
+struct Outcome {
+    reward: Option<f64>,
+    sm: Option<f64>,
+    fall: bool,
+    collapse: bool,
+    timeout: bool,
+    /// The post-step history feature (empty without an encoder).
+    feature: Vec<f32>,
+}
+
+/// Totals of the steps since the last [`HumanoidEnv::take_stats`].
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EnvStats {
+    /// Environment steps.
+    pub steps: u64,
+    /// Masked steps.
+    pub masked: u64,
+    /// Sum of the unmasked training rewards.
+    pub reward_sum: f64,
+    /// Sum of the unmasked SM rewards.
+    pub sm_sum: f64,
+    /// Finished episodes.
+    pub episodes: u64,
+    /// Of which ended by a fall.
+    pub falls: u64,
+    /// Of which ended by reward collapse.
+    pub collapses: u64,
+    /// Sum of their lengths (policy steps).
+    pub length_sum: u64,
+    /// Starts by kind: rsi, rsi+noise, stg, stg+noise.
+    pub starts: [u64; 4],
+    /// Sum of the masked-state counts N of the starts.
+    pub n_masked_sum: u64,
+}
+
+impl EnvStats {
+    /// Mean unmasked training reward per step.
+    pub fn mean_reward(&self) -> f64 {
+        self.reward_sum / (self.steps - self.masked).max(1) as f64
+    }
+
+    /// Mean unmasked SM reward per step.
+    pub fn mean_sm(&self) -> f64 {
+        self.sm_sum / (self.steps - self.masked).max(1) as f64
+    }
+
+    /// Fraction of finished episodes that fell.
+    pub fn fall_rate(&self) -> f64 {
+        self.falls as f64 / self.episodes.max(1) as f64
+    }
+
+    /// Mean length of finished episodes.
+    pub fn mean_length(&self) -> f64 {
+        self.length_sum as f64 / self.episodes.max(1) as f64
+    }
+
+    /// Total starts.
+    pub fn start_count(&self) -> u64 {
+        self.starts.iter().sum()
+    }
+}
+
+/// Immutable context shared by the parallel steps.
+struct Ctx<'a> {
+    lib: &'a MotionLib,
+    sk: Skeleton,
+    kind: DatasetKind,
+    model: Model,
+    objects: Vec<ObjectSpec>,
+    sim: SimOptions,
+    cfg: EnvConfig,
+    obs_dim: usize,
+    act_dim: usize,
+}
+
+fn no_object_class(class: u32) -> bool {
+    class == 0 || class == 10
+}
+
+fn body_only(w: Weights) -> Weights {
+    Weights {
+        op: 0.0,
+        or: 0.0,
+        opv: 0.0,
+        orv: 0.0,
+        rel: 0.0,
+        cg: [0.0; 3],
+        ..w
+    }
+}
+
+/// A started episode: its world, its state and its first observation.
+type Started = (World, Episode, Vec<f32>);
+
+impl Ctx<'_> {
+    fn weights(&self, class: u32) -> (Weights, Weights) {
+        let sm = Weights::sm(self.kind);
+        let train = match self.cfg.method {
+            Method::Sm => sm,
+            Method::Dm => Weights::dm(self.kind),
+        };
+        if no_object_class(class) {
+            (body_only(train), body_only(sm))
+        } else {
+            (train, sm)
+        }
+    }
+
+    /// A fresh world in the trajectory's start state, its episode and its
+    /// first observation (without the embedding). The history holds the
+    /// reference frames before the start; the start's own feature is
+    /// returned in the episode's `pending` slot for the caller to push after
+    /// the embedding.
+    fn start(
+        &self,
+        traj: Trajectory,
+        ats_key: (usize, usize),
+        he: Option<&HeRuntime>,
+    ) -> Result<(Started, Vec<f32>)> {
+        let mut w = World::new(&self.model, &self.objects, &self.sim)?;
+        let mut s = traj.start.clone();
+        if no_object_class(traj.condition) {
+            for k in 0..w.n_objects() {
+                let r = s.root_pos;
+                s.obj_pos[3 * k..3 * k + 3]
+                    .copy_from_slice(&[r[0] + 10.0 + 2.0 * k as f32, r[1] + 10.0, 0.5]);
+                s.obj_rot[4 * k..4 * k + 4].copy_from_slice(&[0.0, 0.0, 0.0, 1.0]);
+                s.obj_linvel[3 * k..3 * k + 3].fill(0.0);
+                s.obj_angvel[3 * k..3 * k + 3].fill(0.0);
+            }
+        }
+        w.set_state(&s)?;
+        let g = w.get_state();
+        let mut row = vec![0f32; self.obs_dim];
+        write_observation(&w, &g, None, self.sk, traj.condition, &mut row);
+        let class = traj.condition;
+        let (weights, sm_weights) = self.weights(class);
+        let (hist, feature) = match he {
+            Some(h) => {
+                let (c, f) = traj.connect;
+                (h.prefill(c as usize, f as usize), h.feature(&g, self.sk))
+            }
+            None => (Vec::new(), Vec::new()),
+        };
+        let ep = Episode {
+            class,
+            weights,
+            sm_weights,
+            ats_key,
+            t: 0,
+            prev_joint_vel: g.joint_vel,
+            sum: 0.0,
+            n: 0,
+            actions: Vec::new(),
+            hist,
+            traj,
+        };
+        Ok(((w, ep, row), feature))
+    }
+
+    /// Apply `a` to `w`, advance one policy step, score it and write the new
+    /// observation (without the embedding) into `out`.
+    fn advance(
+        &self,
+        w: &mut World,
+        ep: &mut Episode,
+        a: &[f32],
+        he: Option<&HeRuntime>,
+        out: &mut [f32],
+    ) -> Outcome {
+        ep.actions.extend_from_slice(a);
+        w.apply_action(a);
+        w.step();
+        let s = w.get_state();
+        let contacts = w.contacts();
+        ep.t += 1;
+        let reference = ep
+            .traj
+            .steps
+            .get(ep.t)
+            .filter(|st| !st.masked)
+            .and_then(|st| {
+                self.lib
+                    .state(st.ref_clip? as usize, st.ref_frame? as usize)
+            });
+        let (reward, sm) = match &reference {
+            Some(r) => {
+                let c = contacts.reward_contacts(self.sk.contact_penalty_bodies());
+                let prev = Some(ep.prev_joint_vel.as_slice());
+                let sm = reward::sm_reward(
+                    &s,
+                    r,
+                    &c,
+                    self.sk,
+                    &ep.sm_weights,
+                    &self.cfg.reward,
+                    prev,
+                )
+                .total;
+                let train = match self.cfg.method {
+                    Method::Sm => sm,
+                    Method::Dm => reward::dm_reward(&s, r, self.sk, &ep.weights),
+                };
+                (Some(train), Some(sm))
+            }
+            None => (None, None),
+        };
+        if let Some(r) = reward {
+            ep.sum += r;
+            ep.n += 1;
+        }
+        let fall = self.cfg.early_termination
+            && ep.class != 0
+            && ep.t > 1
+            && s.root_pos[2] < self.cfg.fall_height;
+        let collapse = self.cfg.collapse_reward > 0.0
+            && ep.t > 1
+            && sm.is_some_and(|x| x < self.cfg.collapse_reward);
+        let timeout = ep.t >= ep.traj.policy_steps();
+        write_observation(w, &s, Some(&contacts), self.sk, ep.class, out);
+        let feature = he.map_or_else(Vec::new, |h| h.feature(&s, self.sk));
+        ep.prev_joint_vel = s.joint_vel;
+        Outcome {
+            reward,
+            sm,
+            fall,
+            collapse,
+            timeout,
+            feature,
+        }
+    }
+}
+
+/// N humanoid worlds with automatic resets (see the module doc).
+pub struct HumanoidEnv<'a> {
+    ctx: Ctx<'a>,
+    sampler: StfSampler<'a>,
+    stf: StfParams,
+    ats: Ats,
+    ats_weights: AtsWeights,
+    worlds: Vec<World>,
+    eps: Vec<Episode>,
+    obs: Vec<f32>,
+    he: Option<HeRuntime>,
+    stats: EnvStats,
+}
+
+/// Everything [`HumanoidEnv::new`] needs.
+pub struct EnvParts<'a> {
+    /// The motion library.
+    pub lib: &'a MotionLib,
+    /// Start sampler over it (with the STG edges when `p_e > 0`).
+    pub sampler: StfSampler<'a>,
+    /// STF parameters (`p_e`, `p_n`, radii, horizon, ...).
+    pub stf: StfParams,
+    /// The ATS table (clips of skills left out disabled).
+    pub ats: Ats,
+    /// The humanoid.
+    pub model: Model,
+    /// Objects of every world.
+    pub objects: Vec<ObjectSpec>,
+    /// Physics settings.
+    pub sim: SimOptions,
+    /// Environment settings.
+    pub cfg: EnvConfig,
+    /// Frozen history encoder (None: no embedding in the observation).
+    pub he: Option<HeRuntime>,
+}
+
+impl<'a> HumanoidEnv<'a> {
+    /// `n` environments, each started by a draw from `rng`.
+    pub fn new(parts: EnvParts<'a>, n: usize, rng: &mut ChaCha8Rng) -> Result<HumanoidEnv<'a>> {
+        let lib = parts.lib;
+        let sk = lib.skeleton;
+        let n_objects = parts.objects.len();
+        let he_dim = parts.he.as_ref().map_or(0, HeRuntime::dim);
+        if let Some(h) = &parts.he {
+            ensure!(
+                h.enc.cfg.n_objects == n_objects,
+                "the history encoder was trained with {} object(s); these worlds have {n_objects}",
+                h.enc.cfg.n_objects
+            );
+        }
+        ensure!(n > 0, "train: at least one environment is needed");
+        let ctx = Ctx {
+            lib,
+            sk,
+            kind: DatasetKind::of_library(lib),
+            obs_dim: obs_dim(sk, n_objects, he_dim),
+            act_dim: 3 * sk.n_joints(),
+            model: parts.model,
+            objects: parts.objects,
+            sim: parts.sim,
+            cfg: parts.cfg,
+        };
+        let mut env = HumanoidEnv {
+            ats_weights: parts.ats.weights(&AtsParams::default()),
+            ctx,
+            sampler: parts.sampler,
+            stf: parts.stf,
+            ats: parts.ats,
+            worlds: Vec::new(),
+            eps: Vec::new(),
+            obs: Vec::new(),
+            he: parts.he,
+            stats: EnvStats::default(),
+        };
+        env.refresh_ats();
+        let mut draws = Vec::with_capacity(n);
+        for _ in 0..n {
+            draws.push(env.draw(rng)?);
+        }
+        let started = env.start_all(draws)?;
+        let od = env.ctx.obs_dim;
+        env.obs = vec![0.0; n * od];
+        let mut feats = Vec::with_capacity(n);
+        for (e, ((w, ep, row), f)) in started.into_iter().enumerate() {
+            env.obs[e * od..(e + 1) * od].copy_from_slice(&row);
+            env.worlds.push(w);
+            env.eps.push(ep);
+            feats.push((e, f));
+        }
+        env.embed_and_push(&feats)?;
+        Ok(env)
+    }
+
+    /// Recompute the start weights from the ATS table (uniform when ATS is off).
+    pub fn refresh_ats(&mut self) {
+        let p = if self.ctx.cfg.ats {
+            self.ctx.cfg.ats_params
+        } else {
+            AtsParams {
+                lambda_s: 0.0,
+                lambda_c: 0.0,
+                lambda_i: 0.0,
+                ..self.ctx.cfg.ats_params
+            }
+        };
+        self.ats_weights = self.ats.weights(&p);
+    }
+
+    /// The ATS table.
+    pub fn ats(&self) -> &Ats {
+        &self.ats
+    }
+
+    /// Replace the ATS table (a resumed run) and refresh the weights.
+    pub fn set_ats(&mut self, ats: Ats) {
+        self.ats = ats;
+        self.refresh_ats();
+    }
+
+    /// Take the totals since the last call.
+    pub fn take_stats(&mut self) -> EnvStats {
+        std::mem::take(&mut self.stats)
+    }
+
+    /// Draw a start trajectory and its ATS key.
+    fn draw(&mut self, rng: &mut ChaCha8Rng) -> Result<(Trajectory, (usize, usize))> {
+        let mut t = self
+            .sampler
+            .sample(&self.ats_weights, &self.stf, rng)
+            .context("no clip of the training skills has a start frame")?;
+        let h = self.stf.horizon;
+        let mut key = (t.connect.0 as usize, t.connect.1 as usize);
+        if self.ctx.cfg.nsi_follow && t.noised {
+            let (c, f) = (t.centroid.0 as usize, t.centroid.1 as usize);
+            t.steps = self.sampler.follow(c, f + 1, h);
+            t.connect = t.centroid;
+            t.n_masked = 0;
+            key = (c, f);
+        } else if t.beta >= 1.0 && t.n_masked == 0 {
+            t.steps = self.sampler.follow(key.0, key.1 + 1, h);
+        }
+        let k = match (t.start_kind, t.noised) {
+            (StartKind::Rsi, false) => 0,
+            (StartKind::Rsi, true) => 1,
+            (StartKind::Stg, false) => 2,
+            (StartKind::Stg, true) => 3,
+        };
+        self.stats.starts[k] += 1;
+        self.stats.n_masked_sum += t.n_masked as u64;
+        Ok((t, key))
+    }
+
+    /// Start every draw in a fresh world, in parallel.
+    fn start_all(
+        &self,
+        draws: Vec<(Trajectory, (usize, usize))>,
+    ) -> Result<Vec<(Started, Vec<f32>)>> {
+        let ctx = &self.ctx;
+        let he = self.he.as_ref();
+        draws
+            .into_par_iter()
+            .map(|(t, key)| ctx.start(t, key, he))
+            .collect()
+    }
+
+    /// For each (env, feature): the embedding of its history into its
+    /// observation row, then the feature pushed as the newest frame.
+    fn embed_and_push(&mut self, feats: &[(usize, Vec<f32>)]) -> Result<()> {
+        let Some(he) = &self.he else {
+            return Ok(());
+        };
+        let od = self.ctx.obs_dim;
+        let hists: Vec<&[f32]> = feats.iter().map(|(e, _)| self.eps[*e].hist.as_slice()).collect();
+        let embs = he.encode(&hists)?;
+        let d = he.dim();
+        for ((e, f), h) in feats.iter().zip(embs) {
+            self.obs[(e + 1) * od - d..(e + 1) * od].copy_from_slice(&h);
+            push_history(&mut self.eps[*e].hist, f);
+        }
+        Ok(())
+    }
+
+    /// The running episodes, for a checkpoint.
+    pub fn snapshot(&self) -> Vec<EpisodeRecord> {
+        self.eps
+            .iter()
+            .map(|ep| EpisodeRecord {
+                traj: ep.traj.clone(),
+                ats_key: ep.ats_key,
+                actions: ep.actions.clone(),
+            })
+            .collect()
+    }
+
+    /// Rebuild the running episodes of a checkpoint: every world from its
+    /// start, replaying its actions.
+    pub fn restore(&mut self, recs: Vec<EpisodeRecord>) -> Result<()> {
+        ensure!(
+            recs.len() == self.worlds.len(),
+            "checkpoint has {} running episodes; this run has {} environments",
+            recs.len(),
+            self.worlds.len()
+        );
+        let ad = self.ctx.act_dim;
+        let od = self.ctx.obs_dim;
+        for r in &recs {
+            ensure!(
+                r.actions.len() % ad == 0 && r.actions.len() / ad <= r.traj.policy_steps(),
+                "checkpoint episode with {} action values does not fit its trajectory",
+                r.actions.len()
+            );
+        }
+        let ctx = &self.ctx;
+        let he = self.he.as_ref();
+        // per env: world, episode, observation row, and the features in
+        // order (start, then one per replayed step)
+        let replayed = recs
+            .into_par_iter()
+            .map(|r| -> Result<(Started, Vec<Vec<f32>>)> {
+                let ((mut w, mut ep, mut row), f0) = ctx.start(r.traj, r.ats_key, he)?;
+                let mut feats = vec![f0];
+                for a in r.actions.chunks_exact(ad) {
+                    let o = ctx.advance(&mut w, &mut ep, a, he, &mut row);
+                    feats.push(o.feature);
+                }
+                Ok(((w, ep, row), feats))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut last = Vec::with_capacity(replayed.len());
+        self.worlds.clear();
+        self.eps.clear();
+        for (e, ((w, mut ep, row), mut feats)) in replayed.into_iter().enumerate() {
+            self.obs[e * od..(e + 1) * od].copy_from_slice(&row);
+            let newest = feats.pop().unwrap_or_default();
+            if self.he.is_some() {
+                for f in &feats {
+                    push_history(&mut ep.hist, f);
+                }
+            }
+            self.worlds.push(w);
+            self.eps.push(ep);
+            last.push((e, newest));
+        }
+        self.embed_and_push(&last)
+    }
+
+    /// Per-env outcomes of a step: masked rewards replaced, statistics
+    /// recorded; returns the rewards.
+    fn score(&mut self, outs: &[Outcome]) -> Vec<f32> {
+        let n = outs.len();
+        let clip_of = |ep: &Episode| ep.ats_key.0;
+        let mut by_clip: std::collections::BTreeMap<usize, (f64, usize)> = Default::default();
+        let (mut all, mut cnt) = (0.0, 0usize);
+        for (ep, o) in self.eps.iter().zip(outs) {
+            if let Some(r) = o.reward {
+                let t = by_clip.entry(clip_of(ep)).or_default();
+                t.0 += r;
+                t.1 += 1;
+                all += r;
+                cnt += 1;
+            }
+        }
+        let mut rewards = vec![0f32; n];
+        for (e, o) in outs.iter().enumerate() {
+            self.stats.steps += 1;
+            rewards[e] = match o.reward {
+                Some(r) => {
+                    self.stats.reward_sum += r;
+                    self.stats.sm_sum += o.sm.unwrap_or(0.0);
+                    r as f32
+                }
+                None => {
+                    self.stats.masked += 1;
+                    match self.ctx.cfg.masked_reward {
+                        MaskedReward::Zero => 0.0,
+                        MaskedReward::ClipMean => match by_clip.get(&clip_of(&self.eps[e])) {
+                            Some((s, k)) => (s / *k as f64) as f32,
+                            None if cnt > 0 => (all / cnt as f64) as f32,
+                            None => 0.0,
+                        },
+                    }
+                }
+            };
+        }
+        rewards
+    }
+}
+
+impl VecEnv for HumanoidEnv<'_> {
+    fn num_envs(&self) -> usize {
+        self.worlds.len()
+    }
+
+    fn obs_dim(&self) -> usize {
+        self.ctx.obs_dim
+    }
+
+    fn act_dim(&self) -> usize {
+        self.ctx.act_dim
+    }
+
+    fn observe(&self) -> Vec<f32> {
+        self.obs.clone()
+    }
+
+    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> StepResult {
+        match self.try_step(actions, rng) {
+            Ok(r) => r,
+            // a world that cannot be rebuilt or an encoder failure is a bug,
+            // not a training outcome
+            Err(e) => panic!("humanoid environment: {e:#}"),
+        }
+    }
+}
+
+impl HumanoidEnv<'_> {
+    /// [`VecEnv::step`] with its errors.
+    pub fn try_step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> Result<StepResult> {
+        let (n, od, ad) = (self.worlds.len(), self.ctx.obs_dim, self.ctx.act_dim);
+        if actions.len() != n * ad {
+            bail!("{} action values for {n} environments of {ad}", actions.len());
+        }
+        let ctx = &self.ctx;
+        let he = self.he.as_ref();
+        let outs: Vec<Outcome> = self
+            .worlds
+            .par_iter_mut()
+            .zip(self.eps.par_iter_mut())
+            .zip(self.obs.par_chunks_mut(od))
+            .zip(actions.par_chunks_exact(ad))
+            .map(|(((w, ep), out), a)| ctx.advance(w, ep, a, he, out))
+            .collect();
+        let feats: Vec<(usize, Vec<f32>)> = outs
+            .iter()
+            .enumerate()
+            .map(|(e, o)| (e, o.feature.clone()))
+            .collect();
+        self.embed_and_push(&feats)?;
+        let rewards = self.score(&outs);
+        let mut res = StepResult {
+            rewards,
+            terminated: vec![false; n],
+            truncated: vec![false; n],
+            final_obs: vec![0.0; n * od],
+        };
+        let mut done = Vec::new();
+        for (e, o) in outs.iter().enumerate() {
+            let term = o.fall || o.collapse;
+            if term || o.timeout {
+                res.terminated[e] = term;
+                res.truncated[e] = !term;
+                res.final_obs[e * od..(e + 1) * od].copy_from_slice(&self.obs[e * od..(e + 1) * od]);
+                let ep = &self.eps[e];
+                self.stats.episodes += 1;
+                self.stats.length_sum += ep.t as u64;
+                self.stats.falls += o.fall as u64;
+                self.stats.collapses += (o.collapse && !o.fall) as u64;
+                if ep.n > 0 {
+                    let (c, f) = ep.ats_key;
+                    self.ats
+                        .record(c, f, ep.sum / ep.n as f64, self.ctx.cfg.ats_update);
+                }
+                done.push(e);
+            }
+        }
+        if !done.is_empty() {
+            let mut draws = Vec::with_capacity(done.len());
+            for _ in &done {
+                draws.push(self.draw(rng)?);
+            }
+            let started = self.start_all(draws)?;
+            let mut feats = Vec::with_capacity(done.len());
+            for (&e, ((w, ep, row), f)) in done.iter().zip(started) {
+                self.obs[e * od..(e + 1) * od].copy_from_slice(&row);
+                self.worlds[e] = w;
+                self.eps[e] = ep;
+                feats.push((e, f));
+            }
+            self.embed_and_push(&feats)?;
+        }
+        Ok(res)
+    }
+}

@@ -1,0 +1,777 @@
+//! `skillaug train`: PPO ([`crate::rl`]) on the rapier3d humanoid
+//! ([`crate::rl::humanoid`]) with the SM or DM reward and every component of
+//! the method as a switch (`--nsi --stg --stf --ats --he`), so the baselines
+//! and the ablations of Tables 1 and 3 are one program with different
+//! recipes.
+//!
+//! Sizes come from a preset that explicit keys override: `preset = "cpu"`
+//! (default: 512 environments x 32 steps = 16,384 samples per iteration,
+//! two 256-256 networks, minibatch 4,096, lr 1e-4, measured to learn on two
+//! cores; docs/measured-notes.md) or `"paper"` (Table 6 and reference §10.2:
+//! 2,048 x 32 = 65,536 samples, 1024-512-512 networks, minibatch 16,384,
+//! lr 2e-5). Both use 6 mini-epochs, γ 0.99, λ 0.95, clip 0.2 and the fixed
+//! σ 0.055.
+//!
+//! The neighbourhood radii, τ, N_max, the ATS exponents and the other STF
+//! settings are read from the recipe's `[sample-stf]` table (one recipe
+//! drives both stages); the switches set p_e (`--stg`) and p_n (`--nsi`,
+//! `--stf`), from `train.p_e` / `train.p_n` (Table 7: 0.1 each).
+//!
+//! Outputs in `--out`: `train_metrics.parquet` (one row per iteration,
+//! `skillaug schema train_metrics`), `policy.safetensors` + `policy.json`
+//! (the final agent), `train.resolved.toml`, and `checkpoint/` (agent,
+//! optimiser moments, normaliser, RNG state, ATS table, episode tracker,
+//! metrics so far and the running episodes as start + actions), written
+//! every `checkpoint_every` iterations by write-then-rename. `--resume`
+//! continues from it and gives the same iterations as an uninterrupted run
+//! with the same seed and thread count.
+
+use super::Common;
+use crate::augment::ats::{Ats, AtsParams, Update};
+use crate::augment::stf::StfSampler;
+use crate::motion::MotionLib;
+use crate::reward::{ContactRule, DatasetKind, RewardOptions, Weights};
+use crate::rl::humanoid::{
+    EnvConfig, EnvParts, EpisodeRecord, HeRuntime, HumanoidEnv, MaskedReward, Method,
+};
+use crate::rl::{collect, Agent, EpisodeTracker, PpoConfig, StepResult, VecEnv};
+use crate::sim::mjcf::Model;
+use crate::sim::{objects, SimOptions};
+use crate::stage::sample_stf::StfConfig;
+use crate::table::train::{MetricRow, METRICS};
+use crate::table::{self, train as mtable};
+use anyhow::{bail, ensure, Context, Result};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Size presets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Preset {
+    /// Sized for two CPU cores.
+    #[default]
+    Cpu,
+    /// The paper's Table 6.
+    Paper,
+}
+
+/// Settings of the `[train]` recipe table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// "sm" or "dm".
+    pub method: Method,
+    /// Skills to train (empty = every skill of the library).
+    pub skills: Vec<String>,
+    /// ε-NSI baseline: neighbourhood starts without the connection rule.
+    pub nsi: bool,
+    /// STG starts (needs `stg_edges.parquet`).
+    pub stg: bool,
+    /// STF starts: neighbourhood starts connected with masked states.
+    pub stf: bool,
+    /// Adaptive Trajectory Sampling.
+    pub ats: bool,
+    /// History encoder embedding in the observation.
+    pub he: bool,
+    /// Folder with `he.safetensors` ("" = the input folder).
+    pub he_dir: String,
+    /// p_e when `stg` (Table 7).
+    pub p_e: f64,
+    /// p_n when `nsi` or `stf` (Table 7).
+    pub p_n: f64,
+    /// Size preset; the keys below override it.
+    pub preset: Preset,
+    /// Environments (preset: 512 cpu, 2048 paper).
+    pub num_envs: Option<usize>,
+    /// Policy steps per environment per iteration (32).
+    pub horizon: Option<usize>,
+    /// Total samples to collect.
+    pub samples: u64,
+    /// Training episode length T, policy steps (60).
+    pub episode_length: usize,
+    /// Early termination on a fall.
+    pub early_termination: bool,
+    /// Fall threshold, m.
+    pub fall_height: f32,
+    /// End an episode when an unmasked SM reward is below this (0 = off).
+    pub collapse_reward: f64,
+    /// "clip-mean" (reference §7.4) or "zero".
+    pub masked_reward: MaskedReward,
+    /// SM contact graph: "paper" (three pairs) or "reference".
+    pub contacts: ContactRule,
+    /// The reference code's hidden smoothness factor in the SM reward.
+    pub smoothness: bool,
+    /// ATS statistic update: "mean" or "halving" (reference).
+    pub ats_update: Update,
+    /// Iterations between checkpoints.
+    pub checkpoint_every: u64,
+    /// PPO settings; `hidden`, `lr`, `minibatch` come from the preset
+    /// unless given here.
+    pub ppo: PpoOverrides,
+}
+
+/// PPO keys of `[train.ppo]`; unset keys take the preset's value or the
+/// SkillMimic default.
+#[derive(Clone, Debug, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PpoOverrides {
+    /// Hidden sizes of both networks.
+    pub hidden: Option<Vec<usize>>,
+    /// Adam learning rate.
+    pub lr: Option<f64>,
+    /// Minibatch size.
+    pub minibatch: Option<usize>,
+    /// Mini-epochs.
+    pub epochs: Option<usize>,
+    /// Action noise (std unless `sigma_is_variance`).
+    pub sigma: Option<f64>,
+    /// Read `sigma` as a variance (the paper's wording).
+    pub sigma_is_variance: Option<bool>,
+    /// Discount.
+    pub gamma: Option<f64>,
+    /// GAE λ.
+    pub lambda: Option<f64>,
+    /// Ratio clip.
+    pub clip: Option<f64>,
+    /// Value-loss weight.
+    pub critic_coef: Option<f64>,
+    /// Bounds-loss weight.
+    pub bounds_coef: Option<f64>,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        TrainConfig {
+            method: Method::Sm,
+            skills: Vec::new(),
+            nsi: false,
+            stg: false,
+            stf: false,
+            ats: false,
+            he: false,
+            he_dir: String::new(),
+            p_e: 0.1,
+            p_n: 0.1,
+            preset: Preset::Cpu,
+            num_envs: None,
+            horizon: None,
+            samples: 2_000_000,
+            episode_length: 60,
+            early_termination: true,
+            fall_height: 0.3,
+            collapse_reward: 0.0,
+            masked_reward: MaskedReward::ClipMean,
+            contacts: ContactRule::Paper,
+            smoothness: false,
+            ats_update: Update::Mean,
+            checkpoint_every: 10,
+            ppo: PpoOverrides::default(),
+        }
+    }
+}
+
+impl TrainConfig {
+    /// Environments per iteration.
+    pub fn envs(&self) -> usize {
+        self.num_envs.unwrap_or(match self.preset {
+            Preset::Cpu => 512,
+            Preset::Paper => 2048,
+        })
+    }
+
+    /// Steps per environment per iteration.
+    pub fn steps(&self) -> usize {
+        self.horizon.unwrap_or(32)
+    }
+
+    /// The PPO configuration: preset, then overrides.
+    pub fn ppo_config(&self) -> PpoConfig {
+        let mut c = PpoConfig::default();
+        if self.preset == Preset::Cpu {
+            c.hidden = vec![256, 256];
+            c.lr = 1e-4;
+            c.minibatch = 4096;
+        }
+        let o = &self.ppo;
+        macro_rules! set {
+            ($($f:ident),*) => {$(if let Some(v) = &o.$f { c.$f = v.clone(); })*};
+        }
+        set!(hidden, lr, minibatch, epochs, sigma, sigma_is_variance, gamma, lambda, clip, critic_coef, bounds_coef);
+        c
+    }
+
+    fn validate(&self) -> Result<()> {
+        for (k, v) in [("p_e", self.p_e), ("p_n", self.p_n)] {
+            ensure!(
+                (0.0..=1.0).contains(&v),
+                "train.{k} = {v}: a probability must lie in [0, 1]"
+            );
+        }
+        ensure!(
+            self.envs() > 0 && self.steps() > 0,
+            "train.num_envs and train.horizon must be > 0"
+        );
+        ensure!(self.episode_length > 0, "train.episode_length must be > 0");
+        ensure!(self.samples > 0, "train.samples must be > 0");
+        ensure!(self.checkpoint_every > 0, "train.checkpoint_every must be > 0");
+        Ok(())
+    }
+}
+
+/// Command-line switches of `skillaug train` (each, when given, overrides
+/// the recipe).
+#[derive(Clone, Debug, Default)]
+pub struct Switches {
+    /// `--method`.
+    pub method: Option<Method>,
+    /// `--nsi`.
+    pub nsi: bool,
+    /// `--stg`.
+    pub stg: bool,
+    /// `--stf`.
+    pub stf: bool,
+    /// `--ats`.
+    pub ats: bool,
+    /// `--he`.
+    pub he: bool,
+    /// `--device`.
+    pub device: Option<String>,
+    /// `--resume`.
+    pub resume: bool,
+}
+
+/// The trainer's state in a checkpoint beside the agent.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct TrainerState {
+    format: u32,
+    /// Hash of the resolved settings (without `samples`).
+    settings_hash: String,
+    iteration: u64,
+    samples: u64,
+    rng_seed: Vec<u8>,
+    rng_stream: u64,
+    rng_word_pos: String,
+    tracker: EpisodeTracker,
+    ats: Vec<(usize, usize, f64, u64)>,
+    metrics: Vec<MetricRow>,
+    episodes: Vec<EpisodeMeta>,
+}
+
+/// A running episode without its actions (those go to `episodes.bin`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct EpisodeMeta {
+    traj: crate::augment::stf::Trajectory,
+    ats_key: (usize, usize),
+    actions: usize,
+}
+
+/// Everything the environment is built from, loaded once.
+pub struct Setup {
+    /// The motion library.
+    pub lib: MotionLib,
+    /// STG edges (empty without `stg`).
+    pub edges: Vec<crate::augment::stg::Edge>,
+    /// The humanoid model.
+    pub model: Model,
+    /// Objects of the trained clips.
+    pub objects: Vec<crate::sim::ObjectSpec>,
+    /// Physics settings.
+    pub sim: SimOptions,
+    /// STF parameters with the switches applied.
+    pub stf: crate::augment::stf::StfParams,
+    /// ATS exponents.
+    pub ats_params: AtsParams,
+    /// Clip ids being trained.
+    pub clips: Vec<usize>,
+    /// Whether perturbed starts need forward kinematics.
+    pub fk: bool,
+}
+
+/// Load the library and everything else the environment needs.
+pub fn setup(common: &Common, cfg: &TrainConfig) -> Result<Setup> {
+    let stf_cfg: StfConfig = common.settings("sample-stf")?;
+    let (mut stf, ats_params) = stf_cfg.params()?;
+    let input = common.input_dir();
+    let lib = table::load_library(input)?;
+    let all = lib.skills();
+    for s in &cfg.skills {
+        if !all.contains(s) {
+            bail!(
+                "train.skills: no skill `{s}` in {} (skills: {})",
+                input.display(),
+                all.join(", ")
+            );
+        }
+    }
+    let clips: Vec<usize> = (0..lib.clips.len())
+        .filter(|c| cfg.skills.is_empty() || cfg.skills.contains(&lib.clips[*c].skill))
+        .collect();
+    stf.p_e = if cfg.stg { cfg.p_e } else { 0.0 };
+    stf.p_n = if cfg.nsi || cfg.stf { cfg.p_n } else { 0.0 };
+    stf.horizon = cfg.episode_length;
+    if cfg.nsi && !cfg.stf {
+        // ε-NSI follows the centroid's clip: no connection, so no start is
+        // given up for lack of one (τ only decides STF connections)
+        stf.tau = 0.0;
+    }
+    if cfg.stg && DatasetKind::of_library(&lib) == DatasetKind::ParaHome {
+        bail!("train --stg: ParaHome has no Stitched Trajectory Graph (Table 7); leave --stg off");
+    }
+    let edges = if cfg.stg {
+        super::sample_stf::load_edges(input, &lib, cfg.p_e)?
+    } else {
+        Vec::new()
+    };
+    let root = crate::dataset::data_root(common.args.data_root.as_deref())?;
+    let model = Model::for_skeleton(&root, lib.skeleton)?;
+    let first = &lib.clips[clips[0]];
+    for &c in &clips {
+        let row = &lib.clips[c];
+        if row.objects != first.objects {
+            bail!(
+                "train: clips `{}` (objects {:?}) and `{}` (objects {:?}) need different worlds; \
+                 train them separately (train.skills)",
+                first.name,
+                first.objects,
+                row.name,
+                row.objects
+            );
+        }
+    }
+    let objects = objects::load_all(&first.objects, &root)?;
+    let sim = SimOptions::for_fps(first.fps as f64);
+    Ok(Setup {
+        fk: stf_cfg.fk,
+        lib,
+        edges,
+        model,
+        objects,
+        sim,
+        stf,
+        ats_params,
+        clips,
+    })
+}
+
+/// Build the environment of `setup` with `n` worlds.
+pub fn environment<'a>(
+    s: &'a Setup,
+    cfg: &TrainConfig,
+    he: Option<HeRuntime>,
+    n: usize,
+    rng: &mut ChaCha8Rng,
+) -> Result<HumanoidEnv<'a>> {
+    let mut ats = Ats::new(&s.lib);
+    for c in 0..s.lib.clips.len() {
+        if !s.clips.contains(&c) {
+            ats.disable_clip(c);
+        }
+    }
+    let weights = Weights::sm(DatasetKind::of_library(&s.lib));
+    let mut sampler = StfSampler::new(&s.lib, &s.edges, weights);
+    if s.fk && s.stf.p_n > 0.0 {
+        sampler = sampler.with_model(s.model.clone());
+    }
+    let env_cfg = EnvConfig {
+        method: cfg.method,
+        early_termination: cfg.early_termination,
+        fall_height: cfg.fall_height,
+        collapse_reward: cfg.collapse_reward,
+        masked_reward: cfg.masked_reward,
+        reward: RewardOptions {
+            contacts: cfg.contacts,
+            smoothness: cfg.smoothness,
+        },
+        nsi_follow: cfg.nsi && !cfg.stf,
+        ats: cfg.ats,
+        ats_params: s.ats_params,
+        ats_update: cfg.ats_update,
+    };
+    HumanoidEnv::new(
+        EnvParts {
+            lib: &s.lib,
+            sampler,
+            stf: s.stf.clone(),
+            ats,
+            model: s.model.clone(),
+            objects: s.objects.clone(),
+            sim: s.sim.clone(),
+            cfg: env_cfg,
+            he,
+        },
+        n,
+        rng,
+    )
+}
+
+/// Times the environment's steps (the simulation share of an iteration).
+pub struct Timed<'e, E: VecEnv> {
+    /// The wrapped environment.
+    pub env: &'e mut E,
+    /// Seconds spent in `step`.
+    pub secs: f64,
+}
+
+impl<E: VecEnv> VecEnv for Timed<'_, E> {
+    fn num_envs(&self) -> usize {
+        self.env.num_envs()
+    }
+    fn obs_dim(&self) -> usize {
+        self.env.obs_dim()
+    }
+    fn act_dim(&self) -> usize {
+        self.env.act_dim()
+    }
+    fn observe(&self) -> Vec<f32> {
+        self.env.observe()
+    }
+    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> StepResult {
+        let t = Instant::now();
+        let r = self.env.step(actions, rng);
+        self.secs += t.elapsed().as_secs_f64();
+        r
+    }
+}
+
+fn settings_hash(cfg: &TrainConfig, common: &Common) -> Result<String> {
+    let mut c = cfg.clone();
+    c.samples = 0;
+    let stf_cfg: StfConfig = common.settings("sample-stf")?;
+    let text = format!(
+        "{}\n{}\nseed={}",
+        toml::to_string(&c)?,
+        toml::to_string(&stf_cfg)?,
+        common.args.seed
+    );
+    Ok(crate::config::hash_text(&text))
+}
+
+fn ckpt_dir(out: &Path) -> PathBuf {
+    out.join("checkpoint")
+}
+
+/// Write a checkpoint: into `checkpoint.tmp/`, then swapped into place.
+fn save_checkpoint(out: &Path, agent: &Agent, st: &TrainerState, recs: &[EpisodeRecord]) -> Result<()> {
+    let tmp = out.join("checkpoint.tmp");
+    let old = out.join("checkpoint.old");
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp)?;
+    }
+    std::fs::create_dir_all(&tmp)?;
+    agent.save(&tmp.join("agent.safetensors"))?;
+    let mut bytes = Vec::new();
+    for r in recs {
+        for a in &r.actions {
+            bytes.extend_from_slice(&a.to_le_bytes());
+        }
+    }
+    std::fs::write(tmp.join("episodes.bin"), bytes)?;
+    std::fs::write(tmp.join("state.json"), serde_json::to_vec(st)?)?;
+    let dir = ckpt_dir(out);
+    if dir.exists() {
+        if old.exists() {
+            std::fs::remove_dir_all(&old)?;
+        }
+        std::fs::rename(&dir, &old)?;
+    }
+    std::fs::rename(&tmp, &dir)?;
+    if old.exists() {
+        std::fs::remove_dir_all(&old)?;
+    }
+    Ok(())
+}
+
+/// Load a checkpoint (`checkpoint/`, or `checkpoint.old/` when a swap was
+/// interrupted).
+fn load_checkpoint(out: &Path, dev: &candle_core::Device) -> Result<(Agent, TrainerState, Vec<EpisodeRecord>)> {
+    let mut dir = ckpt_dir(out);
+    if !dir.join("state.json").is_file() {
+        dir = out.join("checkpoint.old");
+    }
+    ensure!(
+        dir.join("state.json").is_file(),
+        "--resume: no checkpoint in {} (train without --resume to start)",
+        out.display()
+    );
+    let sp = dir.join("state.json");
+    let st: TrainerState = serde_json::from_slice(&std::fs::read(&sp)?)
+        .with_context(|| format!("{} is not a skillaug training checkpoint", sp.display()))?;
+    ensure!(st.format == 1, "{}: checkpoint format {}", sp.display(), st.format);
+    let agent = Agent::load(&dir.join("agent.safetensors"), dev)?;
+    let bytes = std::fs::read(dir.join("episodes.bin"))?;
+    let total: usize = st.episodes.iter().map(|e| e.actions).sum();
+    ensure!(
+        bytes.len() == 4 * total,
+        "{}: episodes.bin holds {} bytes, expected {}",
+        dir.display(),
+        bytes.len(),
+        4 * total
+    );
+    let mut at = 0;
+    let mut recs = Vec::with_capacity(st.episodes.len());
+    for e in &st.episodes {
+        let actions = bytes[4 * at..4 * (at + e.actions)]
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        at += e.actions;
+        recs.push(EpisodeRecord {
+            traj: e.traj.clone(),
+            ats_key: e.ats_key,
+            actions,
+        });
+    }
+    Ok((agent, st, recs))
+}
+
+fn write_metrics(out: &Path, rows: &[MetricRow], resolved: &str, dataset: &str) -> Result<()> {
+    let meta = table::Meta::new(dataset, resolved);
+    let mut o = super::Outputs::new(out)?;
+    o.parquet(
+        "train_metrics.parquet",
+        &mtable::batch(rows)?,
+        &meta.table("train_metrics"),
+    )?;
+    o.commit()
+}
+
+/// Run the stage.
+pub fn run(common: &Common, sw: &Switches) -> Result<()> {
+    let mut cfg: TrainConfig = common.settings("train")?;
+    if let Some(m) = sw.method {
+        cfg.method = m;
+    }
+    cfg.nsi |= sw.nsi;
+    cfg.stg |= sw.stg;
+    cfg.stf |= sw.stf;
+    cfg.ats |= sw.ats;
+    cfg.he |= sw.he;
+    cfg.validate()?;
+    let dev = crate::nn::device(sw.device.as_deref().unwrap_or("cpu"))?;
+    let s = setup(common, &cfg)?;
+    let he = if cfg.he {
+        let dir = if cfg.he_dir.is_empty() {
+            common.input_dir().to_path_buf()
+        } else {
+            PathBuf::from(&cfg.he_dir)
+        };
+        let enc = crate::nn::he::load(&dir, &dev)?;
+        Some(HeRuntime::new(enc, &s.lib, &dev)?)
+    } else {
+        None
+    };
+    let out = common.args.out.clone();
+    std::fs::create_dir_all(&out)
+        .with_context(|| format!("cannot create the output folder {}", out.display()))?;
+    let resolved = common.resolved_toml("train", &cfg)?;
+    let hash = settings_hash(&cfg, common)?;
+    let seed = common.args.seed;
+    let ppo = cfg.ppo_config();
+    let n = cfg.envs();
+    let steps = cfg.steps();
+
+    let (mut agent, mut rng, mut env, mut tracker, mut metrics, mut iteration, mut samples);
+    if sw.resume {
+        let (a, st, recs) = load_checkpoint(&out, &dev)?;
+        ensure!(
+            st.settings_hash == hash,
+            "--resume: the settings differ from those of the checkpoint in {} \
+             (only train.samples may change); start a new --out instead",
+            out.display()
+        );
+        let mut throwaway = ChaCha8Rng::seed_from_u64(seed);
+        env = environment(&s, &cfg, he, n, &mut throwaway)?;
+        env.restore(recs)?;
+        let mut ats = env.ats().clone();
+        for (c, f, m, v) in &st.ats {
+            ats.restore_stat(*c, *f, *m, *v);
+        }
+        env.set_ats(ats);
+        env.take_stats();
+        let mut seed32 = [0u8; 32];
+        ensure!(st.rng_seed.len() == 32, "checkpoint: RNG seed");
+        seed32.copy_from_slice(&st.rng_seed);
+        let mut r = ChaCha8Rng::from_seed(seed32);
+        r.set_stream(st.rng_stream);
+        r.set_word_pos(st.rng_word_pos.parse::<u128>().context("checkpoint: RNG position")?);
+        rng = r;
+        agent = a;
+        ensure!(
+            agent.obs_dim() == env.obs_dim() && agent.act_dim() == env.act_dim(),
+            "--resume: the checkpoint's agent does not fit this environment"
+        );
+        tracker = st.tracker;
+        metrics = st.metrics;
+        iteration = st.iteration;
+        samples = st.samples;
+    } else {
+        rng = ChaCha8Rng::seed_from_u64(seed);
+        env = environment(&s, &cfg, he, n, &mut rng)?;
+        env.take_stats();
+        agent = Agent::new(env.obs_dim(), env.act_dim(), &ppo, seed, &dev)?;
+        tracker = EpisodeTracker::new(n);
+        metrics = Vec::new();
+        iteration = 0;
+        samples = 0;
+    }
+    let quiet = common.args.quiet;
+    if !quiet {
+        let skills: Vec<&str> = {
+            let mut v: Vec<&str> = s.clips.iter().map(|c| s.lib.clips[*c].skill.as_str()).collect();
+            v.dedup();
+            v
+        };
+        println!(
+            "train: {:?} on {} ({} clips), {} envs x {} steps, obs {} act {}, nets {:?}, lr {}, switches nsi={} stg={} stf={} ats={} he={}{}",
+            cfg.method,
+            skills.join(", "),
+            s.clips.len(),
+            n,
+            steps,
+            env.obs_dim(),
+            env.act_dim(),
+            agent.config().hidden,
+            agent.config().lr,
+            cfg.nsi,
+            cfg.stg,
+            cfg.stf,
+            cfg.ats,
+            cfg.he,
+            if sw.resume {
+                format!(", resumed at iteration {iteration} ({samples} samples)")
+            } else {
+                String::new()
+            }
+        );
+    }
+    let dataset = s.lib.clips[0].dataset.clone();
+    let bar = crate::progress::bar(cfg.samples, "train", quiet);
+    bar.set_position(samples.min(cfg.samples));
+    while samples < cfg.samples {
+        let t0 = Instant::now();
+        let mut timed = Timed {
+            env: &mut env,
+            secs: 0.0,
+        };
+        let ro = collect(&agent, &mut timed, steps, &mut tracker, &mut rng)?;
+        let sim_s = timed.secs;
+        let collect_s = t0.elapsed().as_secs_f64();
+        let st = env.take_stats();
+        env.refresh_ats();
+        let t1 = Instant::now();
+        let up = agent.update(&ro, &mut rng)?;
+        let update_s = t1.elapsed().as_secs_f64();
+        let total_s = t0.elapsed().as_secs_f64();
+        iteration += 1;
+        samples += (n * steps) as u64;
+        let returns = tracker.take();
+        let mean_return = if returns.is_empty() {
+            f64::NAN
+        } else {
+            returns.iter().sum::<f64>() / returns.len() as f64
+        };
+        // NaN when no episode started in the iteration
+        let starts = st.start_count() as f64;
+        let values = vec![
+            st.mean_reward(),
+            st.mean_sm(),
+            st.fall_rate(),
+            st.episodes as f64,
+            st.mean_length(),
+            mean_return,
+            st.masked as f64 / st.steps.max(1) as f64,
+            (st.starts[2] + st.starts[3]) as f64 / starts,
+            (st.starts[1] + st.starts[3]) as f64 / starts,
+            st.n_masked_sum as f64 / starts,
+            up.policy_loss,
+            up.value_loss,
+            up.bounds_loss,
+            up.clip_frac,
+            up.approx_kl,
+            (n * steps) as f64 / total_s,
+            sim_s,
+            collect_s - sim_s,
+            update_s,
+        ];
+        debug_assert_eq!(values.len(), METRICS.len());
+        metrics.push(MetricRow {
+            iteration,
+            samples,
+            values,
+        });
+        bar.set_position(samples.min(cfg.samples));
+        bar.set_message(format!(
+            "{:.0} samples/s  reward {:.3}  sm {:.3}  len {:.1}  falls {:.0}%",
+            (n * steps) as f64 / total_s,
+            st.mean_reward(),
+            st.mean_sm(),
+            st.mean_length(),
+            100.0 * st.fall_rate()
+        ));
+        if quiet || bar.is_hidden() {
+            if !quiet {
+                println!(
+                    "iter {iteration:>5} samples {samples:>9} reward {:.4} sm {:.4} len {:5.1} falls {:5.1}% {:.0} samples/s (sim {:.1} s, act {:.1} s, update {:.1} s)",
+                    st.mean_reward(),
+                    st.mean_sm(),
+                    st.mean_length(),
+                    100.0 * st.fall_rate(),
+                    (n * steps) as f64 / total_s,
+                    sim_s,
+                    collect_s - sim_s,
+                    update_s
+                );
+            }
+        }
+        let last = samples >= cfg.samples;
+        if iteration % cfg.checkpoint_every == 0 || last {
+            let recs = env.snapshot();
+            let (seed_bytes, stream, pos) = (rng.get_seed(), rng.get_stream(), rng.get_word_pos());
+            let state = TrainerState {
+                format: 1,
+                settings_hash: hash.clone(),
+                iteration,
+                samples,
+                rng_seed: seed_bytes.to_vec(),
+                rng_stream: stream,
+                rng_word_pos: pos.to_string(),
+                tracker: tracker.clone(),
+                ats: env.ats().visited(),
+                metrics: metrics.clone(),
+                episodes: recs
+                    .iter()
+                    .map(|r| EpisodeMeta {
+                        traj: r.traj.clone(),
+                        ats_key: r.ats_key,
+                        actions: r.actions.len(),
+                    })
+                    .collect(),
+            };
+            save_checkpoint(&out, &agent, &state, &recs)?;
+            write_metrics(&out, &metrics, &resolved, &dataset)?;
+        }
+    }
+    bar.finish_and_clear();
+    agent.save(&out.join("policy.safetensors"))?;
+    write_metrics(&out, &metrics, &resolved, &dataset)?;
+    let mut o = super::Outputs::new(&out)?;
+    o.text("train.resolved.toml", &resolved)?;
+    o.commit()?;
+    if !quiet {
+        if let Some(r) = metrics.last() {
+            println!(
+                "trained {} iterations, {} samples: last mean reward {:.4}, SM {:.4}, falls {:.1}%; wrote {}",
+                r.iteration,
+                r.samples,
+                r.get("mean_reward").unwrap_or(f64::NAN),
+                r.get("mean_sm_reward").unwrap_or(f64::NAN),
+                100.0 * r.get("fall_rate").unwrap_or(f64::NAN),
+                out.join("train_metrics.parquet").display()
+            );
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,97 @@
+//! `train_metrics.parquet`: one row per PPO iteration of `skillaug train`.
+
+use super::ColumnSpec;
+use anyhow::{ensure, Result};
+use arrow::array::{ArrayRef, Float64Array, UInt64Array};
+use arrow::datatypes::DataType;
+use arrow::record_batch::RecordBatch;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+/// The Float64 metric columns after `iteration` and `samples`, in order:
+/// (name, meaning).
+pub const METRICS: &[(&str, &str)] = &[
+    ("mean_reward", "mean training reward per unmasked step of the iteration's rollout (SM or DM)"),
+    ("mean_sm_reward", "mean SM reward per unmasked step (the common yardstick for every method)"),
+    ("fall_rate", "fraction of the episodes finished in the iteration that ended by a fall"),
+    ("episodes", "episodes finished in the iteration"),
+    ("mean_episode_length", "mean length of those episodes, policy steps"),
+    ("mean_return", "mean undiscounted return of those episodes (NaN if none)"),
+    ("masked_frac", "fraction of steps that were masked (no reward of their own)"),
+    ("stg_start_frac", "fraction of the iteration's starts from the Stitched Trajectory Graph (NaN without starts)"),
+    ("noised_start_frac", "fraction of the iteration's starts from an epsilon-neighbourhood (NaN without starts)"),
+    ("mean_n_masked", "mean masked-state count N of the iteration's starts (NaN without starts)"),
+    ("policy_loss", "clipped surrogate loss, mean over minibatches"),
+    ("value_loss", "value loss (squared error), mean over minibatches"),
+    ("bounds_loss", "bounds loss on the action mean"),
+    ("clip_frac", "fraction of samples whose ratio left [1 - eps, 1 + eps]"),
+    ("approx_kl", "approximate KL divergence old to new policy"),
+    ("samples_per_s", "end-to-end samples per second of the iteration"),
+    ("sim_s", "seconds in the environment (physics, observation, reward, resets)"),
+    ("act_s", "seconds in policy and value inference during the rollout"),
+    ("update_s", "seconds in the PPO update"),
+];
+
+/// One iteration's row.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MetricRow {
+    /// Iteration, from 1.
+    pub iteration: u64,
+    /// Samples collected so far, including this iteration.
+    pub samples: u64,
+    /// Values in [`METRICS`] order.
+    #[serde(with = "nan_as_null")]
+    pub values: Vec<f64>,
+}
+
+/// JSON has no NaN: store it as null (checkpoints keep the metric rows).
+mod nan_as_null {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &[f64], s: S) -> Result<S::Ok, S::Error> {
+        let o: Vec<Option<f64>> = v.iter().map(|x| (!x.is_nan()).then_some(*x)).collect();
+        o.serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+        let o: Vec<Option<f64>> = Vec::deserialize(d)?;
+        Ok(o.into_iter().map(|x| x.unwrap_or(f64::NAN)).collect())
+    }
+}
+
+impl MetricRow {
+    /// The value of metric `name` (None for an unknown name).
+    pub fn get(&self, name: &str) -> Option<f64> {
+        let i = METRICS.iter().position(|(n, _)| *n == name)?;
+        self.values.get(i).copied()
+    }
+}
+
+/// Columns of `train_metrics.parquet`.
+pub fn columns() -> Vec<ColumnSpec> {
+    let mut v = vec![
+        ColumnSpec::new("iteration", DataType::UInt64, false, "PPO iteration, from 1"),
+        ColumnSpec::new("samples", DataType::UInt64, false, "samples collected so far (environment steps over all environments)"),
+    ];
+    for (name, doc) in METRICS {
+        v.push(ColumnSpec::new(name, DataType::Float64, false, doc));
+    }
+    v
+}
+
+/// The record batch of `rows`.
+pub fn batch(rows: &[MetricRow]) -> Result<RecordBatch> {
+    for r in rows {
+        ensure!(r.values.len() == METRICS.len(), "train metrics row width");
+    }
+    let mut arrays: Vec<ArrayRef> = vec![
+        Arc::new(UInt64Array::from_iter_values(rows.iter().map(|r| r.iteration))),
+        Arc::new(UInt64Array::from_iter_values(rows.iter().map(|r| r.samples))),
+    ];
+    for i in 0..METRICS.len() {
+        arrays.push(Arc::new(Float64Array::from_iter_values(
+            rows.iter().map(|r| r.values[i]),
+        )));
+    }
+    Ok(RecordBatch::try_new(super::schema_of(&columns()), arrays)?)
+}
