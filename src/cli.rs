@@ -31,6 +31,8 @@ pub enum Command {
     Inspect(InspectArgs),
     /// Print a table's schema, one field per line
     Schema(SchemaArgs),
+    /// Plot training curves from train_metrics.parquet files as a PNG
+    Plot(PlotArgs),
     /// Run a benchmark and print its figures (ingest, sim, train)
     Bench(BenchArgs),
 }
@@ -122,6 +124,32 @@ pub struct SampleStfArgs {
     #[command(flatten)]
     #[allow(missing_docs)]
     pub common: StageArgs,
+}
+
+/// `skillaug plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// train_metrics.parquet files or run folders holding one.
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Output PNG.
+    #[arg(long, default_value = "curve.png")]
+    pub out: PathBuf,
+    /// Metric column to plot.
+    #[arg(long, default_value = "mean_sm_reward")]
+    pub metric: String,
+    /// Legend labels, one per input (default: folder names).
+    #[arg(long)]
+    pub label: Vec<String>,
+    /// Moving average over this many iterations.
+    #[arg(long, default_value_t = 1)]
+    pub smooth: usize,
+    /// Horizontal goal lines.
+    #[arg(long)]
+    pub goal: Vec<f64>,
+    /// Chart title (default: the metric).
+    #[arg(long)]
+    pub title: Option<String>,
 }
 
 /// `skillaug train`.

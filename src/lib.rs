@@ -14,6 +14,7 @@ pub mod dataset;
 pub mod motion;
 pub mod nn;
 pub mod progress;
+pub mod plot;
 pub mod pt;
 pub mod reward;
 pub mod rl;
@@ -52,6 +53,15 @@ pub fn run(cli: Cli) -> Result<()> {
             };
             stage::train::run(&stage::Common::new(a.common)?, &sw)
         }
+        Command::Plot(a) => stage::plot::run(
+            &a.inputs,
+            &a.label,
+            &a.metric,
+            a.smooth,
+            &a.goal,
+            a.title.as_deref(),
+            &a.out,
+        ),
         Command::CheckFk(a) => stage::check_fk::run(&stage::Common::new(a)?),
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => stage::schema::run(&a.name),

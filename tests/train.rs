@@ -335,3 +335,47 @@ fn the_observation_does_not_change_when_the_scene_turns_about_the_vertical() {
         assert_eq!(a[od - 64..].iter().sum::<f32>(), 1.0);
     }
 }
+
+#[test]
+fn open_loop_reference_targets_score_above_zero_actions() {
+    // The reward pipeline of the environment (post-step state against the
+    // next reference frame, contacts from the step) on the Dribble-Forward
+    // clips: replaying the next reference pose as PD targets must track
+    // better than holding the T-pose targets.
+    use skillaug::reward::{self, RewardOptions, Weights};
+    let (dir, run) = ingested("ballplay");
+    let common = common_for(&run, dir.path().join("x"));
+    let s = setup(&common, &TrainConfig::default()).unwrap();
+    let lib = &s.lib;
+    let sk = lib.skeleton;
+    let w8 = Weights::sm(reward::DatasetKind::of_library(lib));
+    let score = |open_loop: bool| -> f64 {
+        let (mut sum, mut n) = (0.0, 0);
+        for clip in lib.clips_of("run") {
+            for start in (2..lib.frames[clip].frames - 31).step_by(10) {
+                let mut w = skillaug::sim::World::new(&s.model, &s.objects, &s.sim).unwrap();
+                w.set_state(&lib.state(clip, start).unwrap()).unwrap();
+                let mut prev = w.get_state().joint_vel;
+                for t in 1..=30 {
+                    let r = lib.state(clip, start + t).unwrap();
+                    if open_loop {
+                        w.set_joint_targets(&r.joint_rot);
+                    } else {
+                        w.set_joint_targets(&vec![0.0; r.joint_rot.len()]);
+                    }
+                    w.step();
+                    let g = w.get_state();
+                    let c = w.contacts().reward_contacts(sk.contact_penalty_bodies());
+                    let opts = RewardOptions::default();
+                    sum += reward::sm_reward(&g, &r, &c, sk, &w8, &opts, Some(&prev)).total;
+                    prev = g.joint_vel;
+                    n += 1;
+                }
+            }
+        }
+        sum / n as f64
+    };
+    let (open, zero) = (score(true), score(false));
+    eprintln!("mean SM reward over 30 steps: open loop {open:.3}, zero actions {zero:.3}");
+    assert!(open > zero + 0.05, "open loop {open} vs zero {zero}");
+}

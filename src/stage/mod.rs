@@ -6,6 +6,7 @@ pub mod build_stg;
 pub mod check_fk;
 pub mod ingest;
 pub mod inspect;
+pub mod plot;
 pub mod pretrain_he;
 pub mod sample_stf;
 pub mod schema;
