@@ -31,6 +31,8 @@ pub enum Command {
     Inspect(InspectArgs),
     /// Print a table's schema, one field per line
     Schema(SchemaArgs),
+    /// Evaluate a trained policy: SR, TSR, epsilon-NSR and NR (eval_summary.parquet)
+    Eval(EvalArgs),
     /// Plot training curves from train_metrics.parquet files as a PNG
     Plot(PlotArgs),
     /// Run a benchmark and print its figures (ingest, sim, train)
@@ -124,6 +126,17 @@ pub struct SampleStfArgs {
     #[command(flatten)]
     #[allow(missing_docs)]
     pub common: StageArgs,
+}
+
+/// `skillaug eval`.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub common: StageArgs,
+    /// Output folder of `skillaug train` (policy.safetensors, policy.meta.json).
+    #[arg(long, value_name = "DIR")]
+    pub policy: PathBuf,
 }
 
 /// `skillaug plot`.

@@ -11,6 +11,7 @@ pub mod augment;
 pub mod cli;
 pub mod config;
 pub mod dataset;
+pub mod eval;
 pub mod motion;
 pub mod nn;
 pub mod progress;
@@ -53,6 +54,7 @@ pub fn run(cli: Cli) -> Result<()> {
             };
             stage::train::run(&stage::Common::new(a.common)?, &sw)
         }
+        Command::Eval(a) => stage::eval::run(&stage::Common::new(a.common)?, &a.policy),
         Command::Plot(a) => stage::plot::run(
             &a.inputs,
             &a.label,

@@ -45,6 +45,7 @@
 use super::{StepResult, VecEnv};
 use crate::augment::ats::{Ats, AtsParams, AtsWeights, Update};
 use crate::augment::stf::{StartKind, StfParams, StfSampler, Trajectory};
+use crate::eval::rules::Probe;
 use crate::motion::{MotionLib, Skeleton, State};
 use crate::nn::he::{self, HistoryEncoder};
 use crate::reward::{self, DatasetKind, RewardOptions, Weights};
@@ -106,6 +107,37 @@ pub struct EnvConfig {
     pub ats_params: AtsParams,
     /// ATS statistic update.
     pub ats_update: Update,
+    /// Condition shown to the policy instead of the skill's own class
+    /// (evaluation of skill transitions).
+    pub condition: Option<u32>,
+    /// Episodes last exactly this many steps instead of to the end of
+    /// their reference (evaluation trials).
+    pub fixed_length: Option<usize>,
+    /// ParaHome's object-centric test perturbation of the start: object
+    /// turned about the vertical by U[-45°, 45°] and moved by up to 10 cm
+    /// horizontally (paper Section 5; reference §11.3).
+    pub object_perturb: bool,
+}
+
+impl EnvConfig {
+    /// Training defaults for `method` (no evaluation overrides).
+    pub fn training(method: Method) -> EnvConfig {
+        EnvConfig {
+            method,
+            early_termination: true,
+            fall_height: 0.3,
+            collapse_reward: 0.0,
+            masked_reward: MaskedReward::ClipMean,
+            reward: RewardOptions::default(),
+            nsi_follow: false,
+            ats: false,
+            ats_params: AtsParams::default(),
+            ats_update: Update::Mean,
+            condition: None,
+            fixed_length: None,
+            object_perturb: false,
+        }
+    }
 }
 
 /// Observation size: reference §3.1 (902 for BallPlay, 905 with the history
@@ -252,6 +284,21 @@ impl HeRuntime {
     }
 }
 
+/// Turn each object about the vertical through its centre by U[-45°, 45°]
+/// and move it by a uniform distance up to 10 cm in a uniform direction.
+fn perturb_objects(s: &mut State, rng: &mut ChaCha8Rng) {
+    use rand::Rng;
+    for k in 0..s.obj_pos.len() / 3 {
+        let yaw = rng.random_range(-std::f32::consts::FRAC_PI_4..std::f32::consts::FRAC_PI_4);
+        let r = 0.1 * rng.random::<f32>();
+        let a = rng.random_range(0.0..std::f32::consts::TAU);
+        s.obj_pos[3 * k] += r * a.cos();
+        s.obj_pos[3 * k + 1] += r * a.sin();
+        let q = Rotation::from_rotation_z(yaw) * quat(&s.obj_rot[4 * k..]);
+        s.obj_rot[4 * k..4 * k + 4].copy_from_slice(&[q.x, q.y, q.z, q.w]);
+    }
+}
+
 /// Push `f` as the newest frame of a `[k*C]` history.
 fn push_history(hist: &mut [f32], f: &[f32]) {
     let c = f.len();
@@ -301,6 +348,7 @@ struct Outcome {
     timeout: bool,
     /// The post-step history feature (empty without an encoder).
     feature: Vec<f32>,
+    probe: Probe,
 }
 
 /// Totals of the steps since the last [`HumanoidEnv::take_stats`].
@@ -366,6 +414,8 @@ struct Ctx<'a> {
     cfg: EnvConfig,
     obs_dim: usize,
     act_dim: usize,
+    /// Wrist bodies (ParaHome: right, left) for the success rules.
+    wrists: Vec<usize>,
 }
 
 fn no_object_class(class: u32) -> bool {
@@ -511,8 +561,9 @@ impl Ctx<'_> {
         let collapse = self.cfg.collapse_reward > 0.0
             && ep.t > 1
             && sm.is_some_and(|x| x < self.cfg.collapse_reward);
-        let timeout = ep.t >= ep.traj.policy_steps();
+        let timeout = ep.t >= self.cfg.fixed_length.unwrap_or(ep.traj.policy_steps());
         write_observation(w, &s, Some(&contacts), self.sk, ep.class, out);
+        let probe = self.probe(&s);
         let feature = he.map_or_else(Vec::new, |h| h.feature(&s, self.sk));
         ep.prev_joint_vel = s.joint_vel;
         Outcome {
@@ -522,6 +573,25 @@ impl Ctx<'_> {
             collapse,
             timeout,
             feature,
+            probe,
+        }
+    }
+
+    /// What the success rules see of `s`.
+    fn probe(&self, s: &State) -> Probe {
+        let three = |v: &[f32]| -> Vec<[f32; 3]> {
+            v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+        };
+        Probe {
+            root: s.root_pos,
+            root_vel: s.root_linvel,
+            obj: three(&s.obj_pos),
+            obj_vel: three(&s.obj_linvel),
+            wrists: self
+                .wrists
+                .iter()
+                .map(|&b| [s.body_pos[3 * b], s.body_pos[3 * b + 1], s.body_pos[3 * b + 2]])
+                .collect(),
         }
     }
 }
@@ -538,6 +608,8 @@ pub struct HumanoidEnv<'a> {
     obs: Vec<f32>,
     he: Option<HeRuntime>,
     stats: EnvStats,
+    probes: Vec<Probe>,
+    sm: Vec<Option<f64>>,
 }
 
 /// Everything [`HumanoidEnv::new`] needs.
@@ -583,6 +655,10 @@ impl<'a> HumanoidEnv<'a> {
             kind: DatasetKind::of_library(lib),
             obs_dim: obs_dim(sk, n_objects, he_dim),
             act_dim: 3 * sk.n_joints(),
+            wrists: ["jRightWrist", "jLeftWrist", "R_Wrist", "L_Wrist"]
+                .iter()
+                .filter_map(|n| sk.body_names().iter().position(|b| b == n))
+                .collect(),
             model: parts.model,
             objects: parts.objects,
             sim: parts.sim,
@@ -599,6 +675,8 @@ impl<'a> HumanoidEnv<'a> {
             obs: Vec::new(),
             he: parts.he,
             stats: EnvStats::default(),
+            probes: Vec::new(),
+            sm: Vec::new(),
         };
         env.refresh_ats();
         let mut draws = Vec::with_capacity(n);
@@ -645,6 +723,17 @@ impl<'a> HumanoidEnv<'a> {
         self.refresh_ats();
     }
 
+    /// What the success rules see of each environment after the last step
+    /// (for an environment whose episode ended, its final state).
+    pub fn probes(&self) -> &[Probe] {
+        &self.probes
+    }
+
+    /// The SM reward of each environment at the last step (`None` when masked).
+    pub fn sm_rewards(&self) -> &[Option<f64>] {
+        &self.sm
+    }
+
     /// Take the totals since the last call.
     pub fn take_stats(&mut self) -> EnvStats {
         std::mem::take(&mut self.stats)
@@ -666,6 +755,12 @@ impl<'a> HumanoidEnv<'a> {
             key = (c, f);
         } else if t.beta >= 1.0 && t.n_masked == 0 {
             t.steps = self.sampler.follow(key.0, key.1 + 1, h);
+        }
+        if self.ctx.cfg.object_perturb {
+            perturb_objects(&mut t.start, rng);
+        }
+        if let Some(c) = self.ctx.cfg.condition {
+            t.condition = c;
         }
         let k = match (t.start_kind, t.noised) {
             (StartKind::Rsi, false) => 0,
@@ -865,6 +960,8 @@ impl HumanoidEnv<'_> {
             .collect();
         self.embed_and_push(&feats)?;
         let rewards = self.score(&outs);
+        self.sm = outs.iter().map(|o| o.sm).collect();
+        self.probes = outs.iter().map(|o| o.probe.clone()).collect();
         let mut res = StepResult {
             rewards,
             terminated: vec![false; n],

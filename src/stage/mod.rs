@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod build_stg;
 pub mod check_fk;
+pub mod eval;
 pub mod ingest;
 pub mod inspect;
 pub mod plot;

@@ -268,6 +268,38 @@ struct EpisodeMeta {
     actions: usize,
 }
 
+/// What a trained policy was trained on (`policy.meta.json`), so that
+/// evaluation can refuse a library, skill set or encoder that does not match.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PolicyMeta {
+    /// Layout version.
+    pub format: u32,
+    /// Dataset of the clips.
+    pub dataset: String,
+    /// Skeleton.
+    pub skeleton: String,
+    /// Trained skills, in clip order.
+    pub skills: Vec<String>,
+    /// Trained clip names.
+    pub clips: Vec<String>,
+    /// Objects of the worlds.
+    pub objects: Vec<String>,
+    /// Observation size.
+    pub obs_dim: usize,
+    /// Action size.
+    pub act_dim: usize,
+    /// Folder of the history encoder (None: trained without).
+    pub he_dir: Option<String>,
+    /// The training settings.
+    pub train: TrainConfig,
+    /// The STF settings (ε of the neighbourhood evaluation).
+    pub stf: StfConfig,
+    /// Iterations trained.
+    pub iterations: u64,
+    /// Samples trained.
+    pub samples: u64,
+}
+
 /// Everything the environment is built from, loaded once.
 pub struct Setup {
     /// The motion library.
@@ -293,6 +325,11 @@ pub struct Setup {
 /// Load the library and everything else the environment needs.
 pub fn setup(common: &Common, cfg: &TrainConfig) -> Result<Setup> {
     let stf_cfg: StfConfig = common.settings("sample-stf")?;
+    setup_with(common, cfg, &stf_cfg)
+}
+
+/// [`setup`] with explicit STF settings (evaluation uses the policy's).
+pub fn setup_with(common: &Common, cfg: &TrainConfig, stf_cfg: &StfConfig) -> Result<Setup> {
     let (mut stf, ats_params) = stf_cfg.params()?;
     let input = common.input_dir();
     let lib = table::load_library(input)?;
@@ -364,19 +401,7 @@ pub fn environment<'a>(
     n: usize,
     rng: &mut ChaCha8Rng,
 ) -> Result<HumanoidEnv<'a>> {
-    let mut ats = Ats::new(&s.lib);
-    for c in 0..s.lib.clips.len() {
-        if !s.clips.contains(&c) {
-            ats.disable_clip(c);
-        }
-    }
-    let weights = Weights::sm(DatasetKind::of_library(&s.lib));
-    let mut sampler = StfSampler::new(&s.lib, &s.edges, weights);
-    if s.fk && s.stf.p_n > 0.0 {
-        sampler = sampler.with_model(s.model.clone());
-    }
     let env_cfg = EnvConfig {
-        method: cfg.method,
         early_termination: cfg.early_termination,
         fall_height: cfg.fall_height,
         collapse_reward: cfg.collapse_reward,
@@ -389,7 +414,31 @@ pub fn environment<'a>(
         ats: cfg.ats,
         ats_params: s.ats_params,
         ats_update: cfg.ats_update,
+        ..EnvConfig::training(cfg.method)
     };
+    environment_with(s, env_cfg, he, n, rng)
+}
+
+/// Build the environment of `setup` with `n` worlds and explicit settings
+/// (evaluation).
+pub fn environment_with<'a>(
+    s: &'a Setup,
+    env_cfg: EnvConfig,
+    he: Option<HeRuntime>,
+    n: usize,
+    rng: &mut ChaCha8Rng,
+) -> Result<HumanoidEnv<'a>> {
+    let mut ats = Ats::new(&s.lib);
+    for c in 0..s.lib.clips.len() {
+        if !s.clips.contains(&c) {
+            ats.disable_clip(c);
+        }
+    }
+    let weights = Weights::sm(DatasetKind::of_library(&s.lib));
+    let mut sampler = StfSampler::new(&s.lib, &s.edges, weights);
+    if s.fk && s.stf.p_n > 0.0 {
+        sampler = sampler.with_model(s.model.clone());
+    }
     HumanoidEnv::new(
         EnvParts {
             lib: &s.lib,
@@ -756,6 +805,35 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
     }
     bar.finish_and_clear();
     agent.save(&out.join("policy.safetensors"))?;
+    let meta = PolicyMeta {
+        format: 1,
+        dataset: dataset.clone(),
+        skeleton: s.lib.skeleton.name().to_string(),
+        skills: {
+            let mut v: Vec<String> = s.clips.iter().map(|c| s.lib.clips[*c].skill.clone()).collect();
+            v.dedup();
+            v
+        },
+        clips: s.clips.iter().map(|c| s.lib.clips[*c].name.clone()).collect(),
+        objects: s.lib.clips[s.clips[0]].objects.clone(),
+        obs_dim: env.obs_dim(),
+        act_dim: env.act_dim(),
+        he_dir: cfg.he.then(|| {
+            if cfg.he_dir.is_empty() {
+                common.input_dir().display().to_string()
+            } else {
+                cfg.he_dir.clone()
+            }
+        }),
+        train: cfg.clone(),
+        stf: common.settings("sample-stf")?,
+        iterations: iteration,
+        samples,
+    };
+    std::fs::write(
+        out.join("policy.meta.json"),
+        serde_json::to_vec_pretty(&meta)?,
+    )?;
     write_metrics(&out, &metrics, &resolved, &dataset)?;
     let mut o = super::Outputs::new(&out)?;
     o.text("train.resolved.toml", &resolved)?;

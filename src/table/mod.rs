@@ -9,6 +9,7 @@
 //! the same text, checked by a test.
 
 pub mod clips;
+pub mod eval;
 pub mod columns;
 pub mod frames;
 pub mod he;
@@ -148,6 +149,8 @@ pub const TABLES: &[&str] = &[
     "he_embeddings",
     "stf_samples",
     "train_metrics",
+    "eval_trials",
+    "eval_summary",
 ];
 
 /// The columns of table `name`.
@@ -161,6 +164,8 @@ pub fn columns_of(name: &str) -> Option<Vec<ColumnSpec>> {
         "stg_summary" => Some(stg::summary_columns()),
         "stf_samples" => Some(stf::columns()),
         "train_metrics" => Some(train::columns()),
+        "eval_trials" => Some(eval::trial_columns()),
+        "eval_summary" => Some(eval::summary_columns()),
         _ => None,
     }
 }

@@ -1,0 +1,214 @@
+//! `eval_trials.parquet` (one row per trial) and `eval_summary.parquet`
+//! (one row per evaluation cell) of `skillaug eval`.
+
+use super::{schema_of, ColumnSpec};
+use anyhow::{Context, Result};
+use arrow::array::{ArrayRef, BooleanArray, Float32Array, Float64Array, StringArray, UInt32Array};
+use arrow::datatypes::DataType;
+use arrow::record_batch::RecordBatch;
+use polars::prelude::{col, len, DataFrame, IntoLazy, NamedFrom, Series, SortMultipleOptions};
+use std::sync::Arc;
+
+/// One trial.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrialRow {
+    /// "sr", "tsr", "nsr" or "nr".
+    pub metric: String,
+    /// Skill of the start frames.
+    pub from: String,
+    /// Skill of the condition and the rule.
+    pub to: String,
+    /// Trial index within the cell.
+    pub trial: u32,
+    /// Verdict of the rule (None for NR).
+    pub success: Option<bool>,
+    /// Policy steps.
+    pub steps: u32,
+    /// Mean SM reward per unmasked step (NaN when none).
+    pub mean_sm: f64,
+    /// Root height at the end, m.
+    pub final_root_z: f32,
+}
+
+/// One cell.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SummaryRow {
+    /// Method label.
+    pub label: String,
+    /// Metric.
+    pub metric: String,
+    /// Start skill.
+    pub from: String,
+    /// Target skill.
+    pub to: String,
+    /// Trials.
+    pub trials: u32,
+    /// Successes (0 for NR).
+    pub successes: u32,
+    /// Success rate (NR: the mean SM reward per step).
+    pub value: f64,
+    /// 95 % Wilson interval (NaN for NR).
+    pub lo: f64,
+    /// Upper end.
+    pub hi: f64,
+}
+
+/// Columns of `eval_trials.parquet`.
+pub fn trial_columns() -> Vec<ColumnSpec> {
+    use DataType::*;
+    vec![
+        ColumnSpec::new("label", Utf8, false, "method label of the evaluated policy (e.g. SM+STG+STF+ATS+HE)"),
+        ColumnSpec::new("metric", Utf8, false, "sr, tsr, nsr (epsilon-NSR) or nr"),
+        ColumnSpec::new("from_skill", Utf8, false, "skill whose reference frames start the trial"),
+        ColumnSpec::new("to_skill", Utf8, false, "skill of the condition and of the success rule"),
+        ColumnSpec::new("trial", UInt32, false, "trial index within the cell"),
+        ColumnSpec::new("success", Boolean, true, "verdict of the success rule (null for nr)"),
+        ColumnSpec::new("steps", UInt32, false, "policy steps of the trial"),
+        ColumnSpec::new("mean_sm", Float64, false, "mean SM reward per step with a reference frame (NaN if none)"),
+        ColumnSpec::new("final_root_z", Float32, false, "root height at the end of the trial, m"),
+    ]
+}
+
+/// Columns of `eval_summary.parquet`.
+pub fn summary_columns() -> Vec<ColumnSpec> {
+    use DataType::*;
+    vec![
+        ColumnSpec::new("label", Utf8, false, "method label"),
+        ColumnSpec::new("metric", Utf8, false, "sr, tsr, nsr or nr"),
+        ColumnSpec::new("from_skill", Utf8, false, "start skill"),
+        ColumnSpec::new("to_skill", Utf8, false, "condition / rule skill"),
+        ColumnSpec::new("trials", UInt32, false, "trials in the cell"),
+        ColumnSpec::new("successes", UInt32, false, "successful trials (0 for nr)"),
+        ColumnSpec::new("value", Float64, false, "success rate in [0, 1]; for nr the mean SM reward per step"),
+        ColumnSpec::new("ci_low", Float64, false, "95 % Wilson interval, lower end (NaN for nr)"),
+        ColumnSpec::new("ci_high", Float64, false, "95 % Wilson interval, upper end (NaN for nr)"),
+    ]
+}
+
+/// The trials as a record batch.
+pub fn trials_batch(label: &str, rows: &[TrialRow]) -> Result<RecordBatch> {
+    let s = |f: &dyn Fn(&TrialRow) -> &str| -> ArrayRef {
+        Arc::new(StringArray::from_iter_values(rows.iter().map(f)))
+    };
+    let arrays: Vec<ArrayRef> = vec![
+        Arc::new(StringArray::from_iter_values(rows.iter().map(|_| label))),
+        s(&|r| &r.metric),
+        s(&|r| &r.from),
+        s(&|r| &r.to),
+        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.trial))),
+        Arc::new(BooleanArray::from(rows.iter().map(|r| r.success).collect::<Vec<_>>())),
+        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.steps))),
+        Arc::new(Float64Array::from_iter_values(rows.iter().map(|r| r.mean_sm))),
+        Arc::new(Float32Array::from_iter_values(rows.iter().map(|r| r.final_root_z))),
+    ];
+    Ok(RecordBatch::try_new(schema_of(&trial_columns()), arrays)?)
+}
+
+/// The summary as a record batch.
+pub fn summary_batch(rows: &[SummaryRow]) -> Result<RecordBatch> {
+    let s = |f: &dyn Fn(&SummaryRow) -> &str| -> ArrayRef {
+        Arc::new(StringArray::from_iter_values(rows.iter().map(f)))
+    };
+    let fl = |f: &dyn Fn(&SummaryRow) -> f64| -> ArrayRef {
+        Arc::new(Float64Array::from_iter_values(rows.iter().map(f)))
+    };
+    let arrays: Vec<ArrayRef> = vec![
+        s(&|r| &r.label),
+        s(&|r| &r.metric),
+        s(&|r| &r.from),
+        s(&|r| &r.to),
+        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.trials))),
+        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.successes))),
+        fl(&|r| r.value),
+        fl(&|r| r.lo),
+        fl(&|r| r.hi),
+    ];
+    Ok(RecordBatch::try_new(schema_of(&summary_columns()), arrays)?)
+}
+
+/// Per cell (metric, from, to): trial count, successes and the mean SM
+/// reward per step (a polars group-by), then the rate and its Wilson interval.
+pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
+    let strs = |f: &dyn Fn(&TrialRow) -> String| rows.iter().map(f).collect::<Vec<String>>();
+    let df = DataFrame::new(rows.len(), vec![
+        Series::new("metric".into(), strs(&|r| r.metric.clone())).into(),
+        Series::new("from".into(), strs(&|r| r.from.clone())).into(),
+        Series::new("to".into(), strs(&|r| r.to.clone())).into(),
+        Series::new(
+            "ok".into(),
+            rows.iter().map(|r| r.success.unwrap_or(false) as u32).collect::<Vec<u32>>(),
+        )
+        .into(),
+        Series::new(
+            "sm".into(),
+            rows.iter()
+                .map(|r| (!r.mean_sm.is_nan()).then_some(r.mean_sm))
+                .collect::<Vec<Option<f64>>>(),
+        )
+        .into(),
+    ])?;
+    let g = df
+        .lazy()
+        .group_by([col("metric"), col("from"), col("to")])
+        .agg([len().alias("n"), col("ok").sum().alias("k"), col("sm").mean().alias("sm")])
+        .sort(["metric", "from", "to"], SortMultipleOptions::default())
+        .collect()
+        .context("eval summary")?;
+    let text = |name: &str| -> Result<Vec<String>> {
+        let c = g.column(name)?.str()?.clone();
+        Ok((0..c.len()).map(|i| c.get(i).unwrap_or_default().to_string()).collect())
+    };
+    let (m, f, t) = (text("metric")?, text("from")?, text("to")?);
+    let u32s = |name: &str| -> Result<Vec<u32>> {
+        let c = g.column(name)?.cast(&polars::prelude::DataType::UInt32)?;
+        let c = c.u32()?;
+        Ok((0..c.len()).map(|i| c.get(i).unwrap_or(0)).collect())
+    };
+    let (n, k) = (u32s("n")?, u32s("k")?);
+    let smc = g.column("sm")?.f64()?.clone();
+    let sm: Vec<f64> = (0..smc.len()).map(|i| smc.get(i).unwrap_or(f64::NAN)).collect();
+    let mut out = Vec::with_capacity(m.len());
+    for i in 0..m.len() {
+        let nr = m[i] == "nr";
+        let (lo, hi) = if nr {
+            (f64::NAN, f64::NAN)
+        } else {
+            crate::stage::eval::wilson(k[i] as usize, n[i] as usize)
+        };
+        out.push(SummaryRow {
+            label: label.to_string(),
+            metric: m[i].clone(),
+            from: f[i].clone(),
+            to: t[i].clone(),
+            trials: n[i],
+            successes: if nr { 0 } else { k[i] },
+            value: if nr { sm[i] } else { k[i] as f64 / n[i].max(1) as f64 },
+            lo,
+            hi,
+        });
+    }
+    Ok(out)
+}
+
+/// A plain text table of a summary.
+pub fn render(rows: &[SummaryRow]) -> String {
+    let mut s = format!(
+        "{:<10} {:<6} {:<16} {:<16} {:>7} {:>9} {:>17}\n",
+        "method", "metric", "from", "to", "trials", "value", "95% interval"
+    );
+    for r in rows {
+        let (v, ci) = if r.metric == "nr" {
+            (format!("{:.3}", r.value), String::new())
+        } else {
+            (
+                format!("{:.1}%", 100.0 * r.value),
+                format!("[{:.1}, {:.1}]%", 100.0 * r.lo, 100.0 * r.hi),
+            )
+        };
+        s += &format!(
+            "{:<10} {:<6} {:<16} {:<16} {:>7} {:>9} {:>17}\n",
+            r.label, r.metric, r.from, r.to, r.trials, v, ci
+        );
+    }
+    s
+}
