@@ -33,6 +33,8 @@ pub enum Command {
     Schema(SchemaArgs),
     /// Evaluate a trained policy: SR, TSR, epsilon-NSR and NR (eval_summary.parquet)
     Eval(EvalArgs),
+    /// Render eval summaries as tables shaped like the paper's (terminal and Markdown)
+    Report(ReportArgs),
     /// Plot training curves from train_metrics.parquet files as a PNG
     Plot(PlotArgs),
     /// Run a benchmark and print its figures (ingest, sim, train)
@@ -137,6 +139,20 @@ pub struct EvalArgs {
     /// Output folder of `skillaug train` (policy.safetensors, policy.meta.json).
     #[arg(long, value_name = "DIR")]
     pub policy: PathBuf,
+}
+
+/// `skillaug report`.
+#[derive(Debug, Args)]
+pub struct ReportArgs {
+    /// eval_summary.parquet files or eval output folders.
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Add the paper's rows (Tables 1, 2 or 5) beside ours.
+    #[arg(long)]
+    pub with_reference: bool,
+    /// Also write the table as Markdown to this file.
+    #[arg(long, value_name = "FILE")]
+    pub markdown: Option<PathBuf>,
 }
 
 /// `skillaug plot`.

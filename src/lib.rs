@@ -55,6 +55,7 @@ pub fn run(cli: Cli) -> Result<()> {
             stage::train::run(&stage::Common::new(a.common)?, &sw)
         }
         Command::Eval(a) => stage::eval::run(&stage::Common::new(a.common)?, &a.policy),
+        Command::Report(a) => stage::report::run(&a.inputs, a.with_reference, a.markdown.as_deref()),
         Command::Plot(a) => stage::plot::run(
             &a.inputs,
             &a.label,

@@ -83,3 +83,26 @@ fn eval_refuses_a_policy_of_another_dataset_or_without_its_encoder() {
     let e = fails(&["eval", "--from", from, "--policy", hp.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(e.contains("history encoder") && e.contains("he.safetensors"), "{e}");
 }
+
+#[test]
+fn report_renders_a_committed_summary_as_the_golden_table() {
+    // tests/data/eval_summary_tiny.parquet: the summary of `skillaug eval` on
+    // a 32-sample policy (8 trials per cell, 120-step trials).
+    let dir = tempfile::tempdir().unwrap();
+    let md = dir.path().join("r.md");
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    let text = ok(&[
+        "report",
+        root.join("eval_summary_tiny.parquet").to_str().unwrap(),
+        "--with-reference",
+        "--markdown",
+        md.to_str().unwrap(),
+    ]);
+    assert!(text.contains("paper: SM+Ours"), "{text}");
+    let got = std::fs::read_to_string(&md).unwrap();
+    let want = std::fs::read_to_string(root.join("report_tiny.md")).unwrap();
+    assert_eq!(got, want, "report differs from tests/data/report_tiny.md");
+    // our row first, then the six methods of Table 1
+    assert_eq!(got.lines().count(), 2 + 1 + 6);
+    assert!(got.lines().next().unwrap().contains("TSR DL-DR | TSR DF-DR | TSR DF-Shot | TSR Layup-DF"));
+}

@@ -297,7 +297,9 @@ mod tests {
         let lifted = |k: usize, z: f32, d: f32| {
             (0..400).map(move |n| {
                 let o = if n < k { [0.0, 0.3 + d, z] } else { [1.0, 1.0, 0.5] };
-                probe(0.9, 0.0, o, 0.0)
+                let mut p = probe(0.9, 0.0, o, 0.0);
+                p.wrists[0][2] = z; // the hand holds the object up
+                p
             })
         };
         assert!(judge(Rule::Place { thr: 0.2 }, lifted(61, 1.0, 0.1)));

@@ -9,6 +9,7 @@ pub mod ingest;
 pub mod inspect;
 pub mod plot;
 pub mod pretrain_he;
+pub mod report;
 pub mod sample_stf;
 pub mod schema;
 pub mod train;
