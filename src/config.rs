@@ -12,7 +12,14 @@ use serde::{de::DeserializeOwned, Serialize};
 use std::path::{Path, PathBuf};
 
 /// Stage tables a recipe may hold.
-pub const STAGES: &[&str] = &["ingest", "build-stg", "sample-stf", "pretrain-he", "train", "eval"];
+pub const STAGES: &[&str] = &[
+    "ingest",
+    "build-stg",
+    "sample-stf",
+    "pretrain-he",
+    "train",
+    "eval",
+];
 
 /// A parsed recipe (empty when no file is given).
 #[derive(Debug, Default, Clone)]

@@ -14,8 +14,8 @@ pub mod dataset;
 pub mod eval;
 pub mod motion;
 pub mod nn;
-pub mod progress;
 pub mod plot;
+pub mod progress;
 pub mod pt;
 pub mod reward;
 pub mod rl;
@@ -55,7 +55,9 @@ pub fn run(cli: Cli) -> Result<()> {
             stage::train::run(&stage::Common::new(a.common)?, &sw)
         }
         Command::Eval(a) => stage::eval::run(&stage::Common::new(a.common)?, &a.policy),
-        Command::Report(a) => stage::report::run(&a.inputs, a.with_reference, a.markdown.as_deref()),
+        Command::Report(a) => {
+            stage::report::run(&a.inputs, a.with_reference, a.markdown.as_deref())
+        }
         Command::Plot(a) => stage::plot::run(
             &a.inputs,
             &a.label,

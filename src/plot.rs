@@ -187,7 +187,11 @@ fn label(v: f64, step: f64) -> String {
 
 /// Render `chart` as a PNG at `path` (written to a temporary file, then renamed).
 pub fn write_png(chart: &Chart, path: &Path) -> Result<()> {
-    let pts = chart.series.iter().flat_map(|s| s.points.iter()).filter(|p| p.1.is_finite());
+    let pts = chart
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter())
+        .filter(|p| p.1.is_finite());
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for &(x, y) in pts {
         x0 = x0.min(x);
@@ -222,14 +226,26 @@ pub fn write_png(chart: &Chart, path: &Path) -> Result<()> {
     while t <= y1 + 1e-9 {
         c.line(px(x0), py(t), px(x1), py(t), grey, 1);
         let l = label(t, ys);
-        c.text(LEFT as i64 - 6 - text_width(&l, 1), py(t) as i64 - 3, &l, 1, black);
+        c.text(
+            LEFT as i64 - 6 - text_width(&l, 1),
+            py(t) as i64 - 3,
+            &l,
+            1,
+            black,
+        );
         t += ys;
     }
     let mut t = (x0 / xs).ceil() * xs;
     while t <= x1 + 1e-9 {
         c.line(px(t), py(y0), px(t), py(y0) + 4.0, black, 1);
         let l = label(t, xs);
-        c.text(px(t) as i64 - text_width(&l, 1) / 2, (H - BOTTOM) as i64 + 8, &l, 1, black);
+        c.text(
+            px(t) as i64 - text_width(&l, 1) / 2,
+            (H - BOTTOM) as i64 + 8,
+            &l,
+            1,
+            black,
+        );
         t += xs;
     }
     c.line(px(x0), py(y0), px(x1), py(y0), black, 1);
@@ -240,16 +256,34 @@ pub fn write_png(chart: &Chart, path: &Path) -> Result<()> {
             c.line(x, py(*v), (x + 6.0).min(px(x1)), py(*v), [120, 120, 120], 1);
             x += 12.0;
         }
-        c.text(px(x1) as i64 - text_width(l, 1) - 4, py(*v) as i64 - 10, l, 1, [90, 90, 90]);
+        c.text(
+            px(x1) as i64 - text_width(l, 1) - 4,
+            py(*v) as i64 - 10,
+            l,
+            1,
+            [90, 90, 90],
+        );
     }
     for (k, s) in chart.series.iter().enumerate() {
         let col = COLORS[k % COLORS.len()];
-        let p: Vec<(f64, f64)> = s.points.iter().copied().filter(|p| p.1.is_finite()).collect();
+        let p: Vec<(f64, f64)> = s
+            .points
+            .iter()
+            .copied()
+            .filter(|p| p.1.is_finite())
+            .collect();
         for w in p.windows(2) {
             c.line(px(w[0].0), py(w[0].1), px(w[1].0), py(w[1].1), col, 2);
         }
         let ly = TOP as i64 + 6 + 14 * k as i64;
-        c.line(LEFT as f64 + 10.0, ly as f64 + 3.0, LEFT as f64 + 30.0, ly as f64 + 3.0, col, 2);
+        c.line(
+            LEFT as f64 + 10.0,
+            ly as f64 + 3.0,
+            LEFT as f64 + 30.0,
+            ly as f64 + 3.0,
+            col,
+            2,
+        );
         c.text(LEFT as i64 + 36, ly, &s.label, 1, black);
     }
     c.text(
@@ -296,7 +330,9 @@ mod tests {
             y_label: "reward".into(),
             series: vec![Series {
                 label: "a".into(),
-                points: (0..50).map(|i| (i as f64 * 1e4, (i as f64 / 10.0).sin())).collect(),
+                points: (0..50)
+                    .map(|i| (i as f64 * 1e4, (i as f64 / 10.0).sin()))
+                    .collect(),
             }],
             hlines: vec![(0.5, "goal".into())],
         };

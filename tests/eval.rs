@@ -7,9 +7,22 @@ use common::*;
 
 fn tiny_train(from: &str, out: &str, extra: &[&str]) {
     let mut a = vec![
-        "train", "--from", from, "--out", out, "-q", "--set", "train.num_envs=4", "--set",
-        "train.horizon=8", "--set", "train.ppo.hidden=[16]", "--set", "train.ppo.minibatch=16",
-        "--set", "train.samples=32",
+        "train",
+        "--from",
+        from,
+        "--out",
+        out,
+        "-q",
+        "--set",
+        "train.num_envs=4",
+        "--set",
+        "train.horizon=8",
+        "--set",
+        "train.ppo.hidden=[16]",
+        "--set",
+        "train.ppo.minibatch=16",
+        "--set",
+        "train.samples=32",
     ];
     a.extend_from_slice(extra);
     ok(&a);
@@ -23,8 +36,19 @@ fn eval_writes_trials_and_a_summary_with_every_cell() {
     tiny_train(from, pol.to_str().unwrap(), &[]);
     let out = dir.path().join("ev");
     let text = ok(&[
-        "eval", "--from", from, "--policy", pol.to_str().unwrap(), "--out", out.to_str().unwrap(),
-        "--set", "eval.trials=6", "--set", "eval.envs=3", "--set", "eval.steps=20",
+        "eval",
+        "--from",
+        from,
+        "--policy",
+        pol.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--set",
+        "eval.trials=6",
+        "--set",
+        "eval.envs=3",
+        "--set",
+        "eval.steps=20",
     ]);
     assert!(text.contains("95% interval"), "{text}");
     let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
@@ -39,15 +63,27 @@ fn eval_writes_trials_and_a_summary_with_every_cell() {
         .column_by_name("steps")
         .unwrap()
         .as_primitive::<arrow::datatypes::UInt32Type>();
-    let metric = t.batches[0].column_by_name("metric").unwrap().as_string::<i32>();
+    let metric = t.batches[0]
+        .column_by_name("metric")
+        .unwrap()
+        .as_string::<i32>();
     for i in 0..t.batches[0].num_rows() {
         if metric.value(i) != "nr" {
             assert_eq!(steps.value(i), 20, "trial length");
         }
     }
-    let lo = b.column_by_name("ci_low").unwrap().as_primitive::<arrow::datatypes::Float64Type>();
-    let hi = b.column_by_name("ci_high").unwrap().as_primitive::<arrow::datatypes::Float64Type>();
-    let v = b.column_by_name("value").unwrap().as_primitive::<arrow::datatypes::Float64Type>();
+    let lo = b
+        .column_by_name("ci_low")
+        .unwrap()
+        .as_primitive::<arrow::datatypes::Float64Type>();
+    let hi = b
+        .column_by_name("ci_high")
+        .unwrap()
+        .as_primitive::<arrow::datatypes::Float64Type>();
+    let v = b
+        .column_by_name("value")
+        .unwrap()
+        .as_primitive::<arrow::datatypes::Float64Type>();
     let m = b.column_by_name("metric").unwrap().as_string::<i32>();
     for i in 0..b.num_rows() {
         if m.value(i) == "nr" {
@@ -66,22 +102,58 @@ fn eval_refuses_a_policy_of_another_dataset_or_without_its_encoder() {
     let pol = dir.path().join("loco-pol");
     tiny_train(loco.to_str().unwrap(), pol.to_str().unwrap(), &[]);
     let out = dir.path().join("ev");
-    let e = fails(&["eval", "--from", from, "--policy", pol.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let e = fails(&[
+        "eval",
+        "--from",
+        from,
+        "--policy",
+        pol.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(e.contains("locomotion") && e.contains("ballplay"), "{e}");
     assert!(!out.exists(), "no output on refusal");
-    let e = fails(&["eval", "--from", from, "--policy", dir.path().join("nothing").to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let e = fails(&[
+        "eval",
+        "--from",
+        from,
+        "--policy",
+        dir.path().join("nothing").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(e.contains("policy.meta.json"), "{e}");
     // a policy with an encoder whose files are gone
     ok(&[
-        "pretrain-he", "--out", from, "-q", "--set", "pretrain-he.steps=2", "--set",
-        "pretrain-he.conv=[8, 8, 4]", "--set", "pretrain-he.predictor_hidden=[16]", "--set",
+        "pretrain-he",
+        "--out",
+        from,
+        "-q",
+        "--set",
+        "pretrain-he.steps=2",
+        "--set",
+        "pretrain-he.conv=[8, 8, 4]",
+        "--set",
+        "pretrain-he.predictor_hidden=[16]",
+        "--set",
         "pretrain-he.batch_size=8",
     ]);
     let hp = dir.path().join("he-pol");
     tiny_train(from, hp.to_str().unwrap(), &["--he"]);
     std::fs::remove_file(run.join("he.safetensors")).unwrap();
-    let e = fails(&["eval", "--from", from, "--policy", hp.to_str().unwrap(), "--out", out.to_str().unwrap()]);
-    assert!(e.contains("history encoder") && e.contains("he.safetensors"), "{e}");
+    let e = fails(&[
+        "eval",
+        "--from",
+        from,
+        "--policy",
+        hp.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        e.contains("history encoder") && e.contains("he.safetensors"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -104,5 +176,9 @@ fn report_renders_a_committed_summary_as_the_golden_table() {
     assert_eq!(got, want, "report differs from tests/data/report_tiny.md");
     // our row first, then the six methods of Table 1
     assert_eq!(got.lines().count(), 2 + 1 + 6);
-    assert!(got.lines().next().unwrap().contains("TSR DL-DR | TSR DF-DR | TSR DF-Shot | TSR Layup-DF"));
+    assert!(got
+        .lines()
+        .next()
+        .unwrap()
+        .contains("TSR DL-DR | TSR DF-DR | TSR DF-Shot | TSR Layup-DF"));
 }

@@ -51,7 +51,11 @@ fn metrics(dir: &Path) -> Vec<(String, Vec<f64>)> {
         if ["samples_per_s", "sim_s", "act_s", "update_s"].contains(&name.as_str()) {
             continue;
         }
-        if let Some(a) = b.column_by_name(&name).unwrap().as_primitive_opt::<Float64Type>() {
+        if let Some(a) = b
+            .column_by_name(&name)
+            .unwrap()
+            .as_primitive_opt::<Float64Type>()
+        {
             v.push((name, a.values().to_vec()));
         }
     }
@@ -166,7 +170,13 @@ fn nsi_starts_are_noised_and_never_masked() {
     ok(&train_args(
         run.to_str().unwrap(),
         out.to_str().unwrap(),
-        &["--nsi", "--set", "train.p_n=1.0", "--set", "train.samples=256"],
+        &[
+            "--nsi",
+            "--set",
+            "train.p_n=1.0",
+            "--set",
+            "train.samples=256",
+        ],
     ));
     let m = metrics(&out);
     let get = |n: &str| m.iter().find(|(k, _)| k == n).unwrap().1.clone();
@@ -196,9 +206,15 @@ fn bad_inputs_are_refused_with_what_is_missing() {
     let out = dir.path().join("t");
     let o = out.to_str().unwrap();
     let e = fails(&train_args(from, o, &["--stg"]));
-    assert!(e.contains("stg_edges.parquet") && e.contains("build-stg"), "{e}");
+    assert!(
+        e.contains("stg_edges.parquet") && e.contains("build-stg"),
+        "{e}"
+    );
     let e = fails(&train_args(from, o, &["--he"]));
-    assert!(e.contains("he.config.json") && e.contains("pretrain-he"), "{e}");
+    assert!(
+        e.contains("he.config.json") && e.contains("pretrain-he"),
+        "{e}"
+    );
     let e = fails(&train_args(from, o, &["--resume"]));
     assert!(e.contains("no checkpoint"), "{e}");
     let e = fails(&train_args(from, o, &["--set", "train.skills=[\"dunk\"]"]));
@@ -209,10 +225,18 @@ fn bad_inputs_are_refused_with_what_is_missing() {
     assert!(e.contains("p_n"), "{e}");
     // a resume with other settings is refused
     ok(&train_args(from, o, &["--set", "train.samples=32"]));
-    let e = fails(&train_args(from, o, &["--set", "train.samples=64", "--resume", "--ats"]));
+    let e = fails(&train_args(
+        from,
+        o,
+        &["--set", "train.samples=64", "--resume", "--ats"],
+    ));
     assert!(e.contains("settings differ"), "{e}");
     // but a larger budget resumes
-    ok(&train_args(from, o, &["--set", "train.samples=64", "--resume"]));
+    ok(&train_args(
+        from,
+        o,
+        &["--set", "train.samples=64", "--resume"],
+    ));
     let m = metrics(&out);
     assert_eq!(m[0].1.len(), 2);
 }
@@ -236,14 +260,22 @@ fn the_history_encoder_adds_three_observation_dimensions() {
         "pretrain-he.batch_size=8",
     ]);
     let out = dir.path().join("he");
-    let mut args = train_args(from, out.to_str().unwrap(), &["--he", "--set", "train.samples=32"]);
+    let mut args = train_args(
+        from,
+        out.to_str().unwrap(),
+        &["--he", "--set", "train.samples=32"],
+    );
     args.retain(|a| *a != "-q");
     let text = ok(&args);
     assert!(text.contains("obs 905 act 156"), "{text}");
-    let text = ok(&train_args(from, dir.path().join("plain").to_str().unwrap(), &["--set", "train.samples=32"])
-        .into_iter()
-        .filter(|a| *a != "-q")
-        .collect::<Vec<_>>());
+    let text = ok(&train_args(
+        from,
+        dir.path().join("plain").to_str().unwrap(),
+        &["--set", "train.samples=32"],
+    )
+    .into_iter()
+    .filter(|a| *a != "-q")
+    .collect::<Vec<_>>());
     assert!(text.contains("obs 902 act 156"), "{text}");
 }
 
@@ -263,6 +295,7 @@ fn common_for(run: &Path, out: PathBuf) -> Common {
 }
 
 #[test]
+#[allow(clippy::needless_range_loop)] // several per-env arrays side by side
 fn episodes_end_by_falls_below_the_threshold_and_by_their_length() {
     let (dir, run) = ingested("ballplay");
     let common = common_for(&run, dir.path().join("x"));
@@ -285,7 +318,11 @@ fn episodes_end_by_falls_below_the_threshold_and_by_their_length() {
         let r = env.step(&zeros, &mut rng);
         for e in 0..n {
             lengths[e] += 1;
-            assert!((0.0..=1.0).contains(&r.rewards[e]), "SM reward {}", r.rewards[e]);
+            assert!(
+                (0.0..=1.0).contains(&r.rewards[e]),
+                "SM reward {}",
+                r.rewards[e]
+            );
             let root_z = r.final_obs[e * od];
             if r.terminated[e] {
                 assert!(root_z < 0.3, "terminated with the root at {root_z} m");
@@ -306,7 +343,10 @@ fn episodes_end_by_falls_below_the_threshold_and_by_their_length() {
     let st = env.take_stats();
     assert_eq!(st.falls, falls);
     assert_eq!(st.episodes, falls + timeouts);
-    eprintln!("zero actions: {falls} falls, {timeouts} timeouts, mean SM {:.3}", st.mean_sm());
+    eprintln!(
+        "zero actions: {falls} falls, {timeouts} timeouts, mean SM {:.3}",
+        st.mean_sm()
+    );
 }
 
 #[test]

@@ -110,7 +110,10 @@ fn norm(v: [f32; 3]) -> f32 {
 }
 
 fn wrist_dist(p: &Probe, o: [f32; 3]) -> f32 {
-    p.wrists.iter().map(|w| dist(*w, o)).fold(f32::INFINITY, f32::min)
+    p.wrists
+        .iter()
+        .map(|w| dist(*w, o))
+        .fold(f32::INFINITY, f32::min)
 }
 
 /// One trial being judged.
@@ -169,8 +172,8 @@ impl Judge {
             Rule::Drink => self.count_if(z > 0.5 && wrist_dist(p, ball) < 0.2 && ball[2] > 1.2),
             Rule::Pour => self.count_if(z > 0.5 && wrist_dist(p, ball) < 0.2 && ball[2] > 1.0),
             Rule::MultiPour => {
-                let both = p.obj.len() >= 2
-                    && p.obj.iter().all(|o| wrist_dist(p, *o) < 0.2 && o[2] > 0.9);
+                let both =
+                    p.obj.len() >= 2 && p.obj.iter().all(|o| wrist_dist(p, *o) < 0.2 && o[2] > 0.9);
                 self.count_if(z > 0.5 && both)
             }
         }
@@ -237,10 +240,19 @@ mod tests {
         };
         assert!(!judge(Rule::Run, (0..600).map(lost)));
         // a fall after 100 steps
-        let fell = |n: usize| if n == 350 { probe(0.2, 0.0, [0.5, 0.0, 0.4], 1.0) } else { good(n) };
+        let fell = |n: usize| {
+            if n == 350 {
+                probe(0.2, 0.0, [0.5, 0.0, 0.4], 1.0)
+            } else {
+                good(n)
+            }
+        };
         assert!(!judge(Rule::Run, (0..600).map(fell)));
         // resting ball never moves
-        assert!(!judge(Rule::Run, (0..600).map(|_| probe(0.9, 2.0, [0.5, 0.0, 0.12], 0.0))));
+        assert!(!judge(
+            Rule::Run,
+            (0..600).map(|_| probe(0.9, 2.0, [0.5, 0.0, 0.12], 0.0))
+        ));
     }
 
     #[test]
@@ -278,13 +290,26 @@ mod tests {
 
     #[test]
     fn counting_rules_use_their_thresholds() {
-        let hold = |k: usize| (0..200).map(move |n| {
-            let near = n < k;
-            probe(0.9, 0.0, if near { [0.2, 0.0, 0.9] } else { [3.0, 0.0, 0.1] }, 0.0)
-        });
+        let hold = |k: usize| {
+            (0..200).map(move |n| {
+                let near = n < k;
+                probe(
+                    0.9,
+                    0.0,
+                    if near {
+                        [0.2, 0.0, 0.9]
+                    } else {
+                        [3.0, 0.0, 0.1]
+                    },
+                    0.0,
+                )
+            })
+        };
         assert!(judge(Rule::Pickup, hold(61)));
         assert!(!judge(Rule::Pickup, hold(60)));
-        let up = |k: usize, v: f32| (0..300).map(move |n| probe(if n < k { 0.9 } else { 0.3 }, v, [0.0; 3], 0.0));
+        let up = |k: usize, v: f32| {
+            (0..300).map(move |n| probe(if n < k { 0.9 } else { 0.3 }, v, [0.0; 3], 0.0))
+        };
         assert!(judge(Rule::Getup, up(61, 0.5)));
         assert!(!judge(Rule::Getup, up(61, 1.5)));
         assert!(!judge(Rule::Getup, up(60, 0.5)));
@@ -296,7 +321,11 @@ mod tests {
     fn parahome_rules_measure_the_object_against_the_nearest_wrist() {
         let lifted = |k: usize, z: f32, d: f32| {
             (0..400).map(move |n| {
-                let o = if n < k { [0.0, 0.3 + d, z] } else { [1.0, 1.0, 0.5] };
+                let o = if n < k {
+                    [0.0, 0.3 + d, z]
+                } else {
+                    [1.0, 1.0, 0.5]
+                };
                 let mut p = probe(0.9, 0.0, o, 0.0);
                 p.wrists[0][2] = z; // the hand holds the object up
                 p
@@ -312,12 +341,18 @@ mod tests {
         assert!(!judge(Rule::Pour, lifted(120, 1.1, 0.1)));
         assert!(!judge(Rule::Pour, lifted(30, 1.1, 0.1)));
         // two objects, both held
-        let both = |k: usize| (0..400).map(move |n| {
-            let mut p = probe(0.9, 0.0, [0.0, 0.3, 1.0], 0.0);
-            p.obj.push(if n < k { [0.0, -0.3, 1.0] } else { [2.0, 0.0, 0.1] });
-            p.obj_vel.push([0.0; 3]);
-            p
-        });
+        let both = |k: usize| {
+            (0..400).map(move |n| {
+                let mut p = probe(0.9, 0.0, [0.0, 0.3, 1.0], 0.0);
+                p.obj.push(if n < k {
+                    [0.0, -0.3, 1.0]
+                } else {
+                    [2.0, 0.0, 0.1]
+                });
+                p.obj_vel.push([0.0; 3]);
+                p
+            })
+        };
         assert!(judge(Rule::MultiPour, both(50)));
         assert!(!judge(Rule::MultiPour, both(20)));
     }
@@ -326,8 +361,14 @@ mod tests {
     fn skills_map_to_rules() {
         assert_eq!(Rule::of_skill("lrun", 0.0), Some(Rule::Run));
         assert_eq!(Rule::of_skill("pick_40", 0.0), Some(Rule::Pickup));
-        assert_eq!(Rule::of_skill("shot_style1", 2.0), Some(Rule::Shot { target_z: 2.0 }));
-        assert_eq!(Rule::of_skill("place_pan", 0.0), Some(Rule::Place { thr: 0.35 }));
+        assert_eq!(
+            Rule::of_skill("shot_style1", 2.0),
+            Some(Rule::Shot { target_z: 2.0 })
+        );
+        assert_eq!(
+            Rule::of_skill("place_pan", 0.0),
+            Some(Rule::Place { thr: 0.35 })
+        );
         assert_eq!(Rule::of_skill("turnhook", 0.0), None);
         assert_eq!(Rule::Drink.trial_steps(), 200);
     }

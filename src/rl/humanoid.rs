@@ -467,8 +467,11 @@ impl Ctx<'_> {
         if no_object_class(traj.condition) {
             for k in 0..w.n_objects() {
                 let r = s.root_pos;
-                s.obj_pos[3 * k..3 * k + 3]
-                    .copy_from_slice(&[r[0] + 10.0 + 2.0 * k as f32, r[1] + 10.0, 0.5]);
+                s.obj_pos[3 * k..3 * k + 3].copy_from_slice(&[
+                    r[0] + 10.0 + 2.0 * k as f32,
+                    r[1] + 10.0,
+                    0.5,
+                ]);
                 s.obj_rot[4 * k..4 * k + 4].copy_from_slice(&[0.0, 0.0, 0.0, 1.0]);
                 s.obj_linvel[3 * k..3 * k + 3].fill(0.0);
                 s.obj_angvel[3 * k..3 * k + 3].fill(0.0);
@@ -532,16 +535,9 @@ impl Ctx<'_> {
             Some(r) => {
                 let c = contacts.reward_contacts(self.sk.contact_penalty_bodies());
                 let prev = Some(ep.prev_joint_vel.as_slice());
-                let sm = reward::sm_reward(
-                    &s,
-                    r,
-                    &c,
-                    self.sk,
-                    &ep.sm_weights,
-                    &self.cfg.reward,
-                    prev,
-                )
-                .total;
+                let sm =
+                    reward::sm_reward(&s, r, &c, self.sk, &ep.sm_weights, &self.cfg.reward, prev)
+                        .total;
                 let train = match self.cfg.method {
                     Method::Sm => sm,
                     Method::Dm => reward::dm_reward(&s, r, self.sk, &ep.weights),
@@ -590,7 +586,13 @@ impl Ctx<'_> {
             wrists: self
                 .wrists
                 .iter()
-                .map(|&b| [s.body_pos[3 * b], s.body_pos[3 * b + 1], s.body_pos[3 * b + 2]])
+                .map(|&b| {
+                    [
+                        s.body_pos[3 * b],
+                        s.body_pos[3 * b + 1],
+                        s.body_pos[3 * b + 2],
+                    ]
+                })
                 .collect(),
         }
     }
@@ -793,7 +795,10 @@ impl<'a> HumanoidEnv<'a> {
             return Ok(());
         };
         let od = self.ctx.obs_dim;
-        let hists: Vec<&[f32]> = feats.iter().map(|(e, _)| self.eps[*e].hist.as_slice()).collect();
+        let hists: Vec<&[f32]> = feats
+            .iter()
+            .map(|(e, _)| self.eps[*e].hist.as_slice())
+            .collect();
         let embs = he.encode(&hists)?;
         let d = he.dim();
         for ((e, f), h) in feats.iter().zip(embs) {
@@ -941,7 +946,10 @@ impl HumanoidEnv<'_> {
     pub fn try_step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> Result<StepResult> {
         let (n, od, ad) = (self.worlds.len(), self.ctx.obs_dim, self.ctx.act_dim);
         if actions.len() != n * ad {
-            bail!("{} action values for {n} environments of {ad}", actions.len());
+            bail!(
+                "{} action values for {n} environments of {ad}",
+                actions.len()
+            );
         }
         let ctx = &self.ctx;
         let he = self.he.as_ref();
@@ -974,7 +982,8 @@ impl HumanoidEnv<'_> {
             if term || o.timeout {
                 res.terminated[e] = term;
                 res.truncated[e] = !term;
-                res.final_obs[e * od..(e + 1) * od].copy_from_slice(&self.obs[e * od..(e + 1) * od]);
+                res.final_obs[e * od..(e + 1) * od]
+                    .copy_from_slice(&self.obs[e * od..(e + 1) * od]);
                 let ep = &self.eps[e];
                 self.stats.episodes += 1;
                 self.stats.length_sum += ep.t as u64;

@@ -249,12 +249,21 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
         let s = setup(&common, &cfg)?;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
         let mut env = environment(&s, &cfg, None, cfg.envs(), &mut rng)?;
-        let mut agent = Agent::new(env.obs_dim(), env.act_dim(), &cfg.ppo_config(), 0, &crate::nn::device("cpu")?)?;
+        let mut agent = Agent::new(
+            env.obs_dim(),
+            env.act_dim(),
+            &cfg.ppo_config(),
+            0,
+            &crate::nn::device("cpu")?,
+        )?;
         let mut tracker = EpisodeTracker::new(cfg.envs());
         let (mut sim, mut act, mut upd, mut total, mut samples) = (0.0, 0.0, 0.0, 0.0, 0usize);
         for _ in 0..repeat {
             let t0 = Instant::now();
-            let mut timed = Timed { env: &mut env, secs: 0.0 };
+            let mut timed = Timed {
+                env: &mut env,
+                secs: 0.0,
+            };
             let ro = collect(&agent, &mut timed, cfg.steps(), &mut tracker, &mut rng)?;
             let sim_s = timed.secs;
             let c = t0.elapsed().as_secs_f64();

@@ -161,7 +161,11 @@ fn run_cell(
     let he_rt = match he {
         Some(dir) => {
             let dev = candle_core::Device::Cpu;
-            Some(HeRuntime::new(crate::nn::he::load(dir, &dev)?, &s.lib, &dev)?)
+            Some(HeRuntime::new(
+                crate::nn::he::load(dir, &dev)?,
+                &s.lib,
+                &dev,
+            )?)
         }
         None => None,
     };
@@ -231,7 +235,10 @@ fn run_cell(
 /// Run the stage. `policy` is a `skillaug train` output folder.
 pub fn run(common: &Common, policy: &Path) -> Result<()> {
     let cfg: EvalConfig = common.settings("eval")?;
-    ensure!(cfg.trials > 0 && cfg.envs > 0, "eval.trials and eval.envs must be > 0");
+    ensure!(
+        cfg.trials > 0 && cfg.envs > 0,
+        "eval.trials and eval.envs must be > 0"
+    );
     for m in &cfg.metrics {
         ensure!(
             ["sr", "tsr", "nsr", "nr"].contains(&m.as_str()),
@@ -239,16 +246,17 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         );
     }
     let mp = policy.join("policy.meta.json");
-    let meta: PolicyMeta = serde_json::from_slice(
-        &std::fs::read(&mp).with_context(|| {
-            format!(
-                "cannot read {}: give the output folder of `skillaug train` (--policy)",
-                mp.display()
-            )
-        })?,
-    )
+    let meta: PolicyMeta = serde_json::from_slice(&std::fs::read(&mp).with_context(|| {
+        format!(
+            "cannot read {}: give the output folder of `skillaug train` (--policy)",
+            mp.display()
+        )
+    })?)
     .with_context(|| format!("{} is not a skillaug policy description", mp.display()))?;
-    let agent = Agent::load(&policy.join("policy.safetensors"), &candle_core::Device::Cpu)?;
+    let agent = Agent::load(
+        &policy.join("policy.safetensors"),
+        &candle_core::Device::Cpu,
+    )?;
     let input = common.input_dir();
     let lib = table::load_library(input)?;
     let dataset = &lib.clips[0].dataset;
@@ -313,38 +321,109 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
     let he = he_dir.as_deref();
     for skill in &meta.skills {
         let rule = Rule::of_skill(skill, shot_target(&lib, skill));
-        let steps = |r: Rule| if cfg.steps > 0 { cfg.steps } else { r.trial_steps() };
+        let steps = |r: Rule| {
+            if cfg.steps > 0 {
+                cfg.steps
+            } else {
+                r.trial_steps()
+            }
+        };
         if let Some(r) = rule {
             if want("sr") {
-                let cell = Cell { metric: "sr", from: skill.clone(), to: skill.clone() };
-                let ec = EnvConfig { fixed_length: Some(steps(r)), ..base.clone() };
-                rows.extend(run_cell(common, &meta, &agent, he, &cell, Some(r), ec, &cfg, next_seed())?);
+                let cell = Cell {
+                    metric: "sr",
+                    from: skill.clone(),
+                    to: skill.clone(),
+                };
+                let ec = EnvConfig {
+                    fixed_length: Some(steps(r)),
+                    ..base.clone()
+                };
+                rows.extend(run_cell(
+                    common,
+                    &meta,
+                    &agent,
+                    he,
+                    &cell,
+                    Some(r),
+                    ec,
+                    &cfg,
+                    next_seed(),
+                )?);
             }
             if want("nsr") {
-                let cell = Cell { metric: "nsr", from: skill.clone(), to: skill.clone() };
+                let cell = Cell {
+                    metric: "nsr",
+                    from: skill.clone(),
+                    to: skill.clone(),
+                };
                 let ec = EnvConfig {
                     fixed_length: Some(steps(r)),
                     object_perturb: kind == DatasetKind::ParaHome,
                     ..base.clone()
                 };
-                rows.extend(run_cell(common, &meta, &agent, he, &cell, Some(r), ec, &cfg, next_seed())?);
+                rows.extend(run_cell(
+                    common,
+                    &meta,
+                    &agent,
+                    he,
+                    &cell,
+                    Some(r),
+                    ec,
+                    &cfg,
+                    next_seed(),
+                )?);
             }
         }
         if want("nr") {
-            let cell = Cell { metric: "nr", from: skill.clone(), to: skill.clone() };
-            rows.extend(run_cell(common, &meta, &agent, he, &cell, None, base.clone(), &cfg, next_seed())?);
+            let cell = Cell {
+                metric: "nr",
+                from: skill.clone(),
+                to: skill.clone(),
+            };
+            rows.extend(run_cell(
+                common,
+                &meta,
+                &agent,
+                he,
+                &cell,
+                None,
+                base.clone(),
+                &cfg,
+                next_seed(),
+            )?);
         }
     }
     if want("tsr") {
         for (a, b) in tsr_pairs(kind, &meta.skills) {
-            let Some(r) = Rule::of_skill(&b, shot_target(&lib, &b)) else { continue };
-            let cell = Cell { metric: "tsr", from: a.clone(), to: b.clone() };
+            let Some(r) = Rule::of_skill(&b, shot_target(&lib, &b)) else {
+                continue;
+            };
+            let cell = Cell {
+                metric: "tsr",
+                from: a.clone(),
+                to: b.clone(),
+            };
             let ec = EnvConfig {
-                fixed_length: Some(if cfg.steps > 0 { cfg.steps } else { r.trial_steps() }),
+                fixed_length: Some(if cfg.steps > 0 {
+                    cfg.steps
+                } else {
+                    r.trial_steps()
+                }),
                 condition: Some(class_of(&b)),
                 ..base.clone()
             };
-            rows.extend(run_cell(common, &meta, &agent, he, &cell, Some(r), ec, &cfg, next_seed())?);
+            rows.extend(run_cell(
+                common,
+                &meta,
+                &agent,
+                he,
+                &cell,
+                Some(r),
+                ec,
+                &cfg,
+                next_seed(),
+            )?);
         }
     }
     let summary = etable::summarise(&label, &rows)?;
@@ -353,13 +432,24 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         .with("label", label.clone())
         .with("policy", policy.display().to_string());
     let mut out = super::Outputs::new(&common.args.out)?;
-    out.parquet("eval_trials.parquet", &etable::trials_batch(&label, &rows)?, &tmeta.table("eval_trials"))?;
-    out.parquet("eval_summary.parquet", &etable::summary_batch(&summary)?, &tmeta.table("eval_summary"))?;
+    out.parquet(
+        "eval_trials.parquet",
+        &etable::trials_batch(&label, &rows)?,
+        &tmeta.table("eval_trials"),
+    )?;
+    out.parquet(
+        "eval_summary.parquet",
+        &etable::summary_batch(&summary)?,
+        &tmeta.table("eval_summary"),
+    )?;
     out.text("eval.resolved.toml", &resolved)?;
     out.commit()?;
     if !common.args.quiet {
         println!("{}", etable::render(&summary));
-        println!("wrote {}", common.args.out.join("eval_summary.parquet").display());
+        println!(
+            "wrote {}",
+            common.args.out.join("eval_summary.parquet").display()
+        );
     }
     Ok(())
 }
@@ -371,7 +461,10 @@ mod tests {
     #[test]
     fn wilson_intervals_match_known_values() {
         let (lo, hi) = wilson(8, 10);
-        assert!((lo - 0.4902).abs() < 1e-3 && (hi - 0.9433).abs() < 1e-3, "{lo} {hi}");
+        assert!(
+            (lo - 0.4902).abs() < 1e-3 && (hi - 0.9433).abs() < 1e-3,
+            "{lo} {hi}"
+        );
         let (lo, hi) = wilson(0, 8);
         assert!(lo == 0.0 && (hi - 0.3244).abs() < 1e-3);
         assert!(wilson(0, 0).0.is_nan());
@@ -388,7 +481,9 @@ mod tests {
         t.ats = true;
         t.he = true;
         assert_eq!(method_label(&t), "SM+STG+STF+ATS+HE");
-        let skills: Vec<String> = ["layup", "lrun", "rrun", "run", "shot"].map(String::from).to_vec();
+        let skills: Vec<String> = ["layup", "lrun", "rrun", "run", "shot"]
+            .map(String::from)
+            .to_vec();
         assert_eq!(tsr_pairs(DatasetKind::BallPlay, &skills).len(), 4);
         assert_eq!(tsr_pairs(DatasetKind::BallPlay, &skills[..2]).len(), 0);
     }

@@ -15,7 +15,12 @@ pub fn curve(path: &Path, metric: &str) -> Result<Vec<(f64, f64)>> {
         let s = b
             .column_by_name("samples")
             .and_then(|c| c.as_primitive_opt::<UInt64Type>())
-            .with_context(|| format!("{}: no u64 column `samples`: not a train_metrics table", path.display()))?;
+            .with_context(|| {
+                format!(
+                    "{}: no u64 column `samples`: not a train_metrics table",
+                    path.display()
+                )
+            })?;
         let m = b
             .column_by_name(metric)
             .and_then(|c| c.as_any().downcast_ref::<Float64Array>())
@@ -25,7 +30,12 @@ pub fn curve(path: &Path, metric: &str) -> Result<Vec<(f64, f64)>> {
                     path.display()
                 )
             })?;
-        v.extend(s.values().iter().zip(m.values()).map(|(a, b)| (*a as f64, *b)));
+        v.extend(
+            s.values()
+                .iter()
+                .zip(m.values())
+                .map(|(a, b)| (*a as f64, *b)),
+        );
     }
     Ok(v)
 }
@@ -59,10 +69,15 @@ pub fn run(
     }
     let mut series = Vec::new();
     for (i, p) in inputs.iter().enumerate() {
-        let file = if p.is_dir() { p.join("train_metrics.parquet") } else { p.clone() };
+        let file = if p.is_dir() {
+            p.join("train_metrics.parquet")
+        } else {
+            p.clone()
+        };
         let pts = curve(&file, metric)?;
         let label = labels.get(i).cloned().unwrap_or_else(|| {
-            p.file_name().map_or("run".into(), |s| s.to_string_lossy().into_owned())
+            p.file_name()
+                .map_or("run".into(), |s| s.to_string_lossy().into_owned())
         });
         series.push(Series {
             label,

@@ -25,30 +25,244 @@ pub struct PaperRow {
 
 /// Table 1 (BallPlay).
 pub const TABLE1: &[PaperRow] = &[
-    PaperRow { method: "DM", cells: &[("run", 89.2, 38.5, 0.09), ("lrun", 70.4, 24.5, 0.10), ("rrun", 87.5, 26.8, 0.06), ("layup", 0.0, 0.0, 0.18), ("shot", 0.0, 0.0, 0.12)], tsr: &[("lrun", "rrun", 1.6), ("run", "rrun", 17.1), ("run", "shot", 0.0), ("layup", "run", 50.2)], avg: (49.4, 18.0, 0.11, Some(17.2)) },
-    PaperRow { method: "DM+eNSI", cells: &[("run", 96.2, 56.3, 0.10), ("lrun", 76.5, 38.7, 0.11), ("rrun", 81.8, 29.5, 0.06), ("layup", 1.0, 0.5, 0.20), ("shot", 0.0, 0.0, 0.11)], tsr: &[("lrun", "rrun", 2.9), ("run", "rrun", 14.0), ("run", "shot", 0.0), ("layup", "run", 46.1)], avg: (51.1, 25.0, 0.12, Some(15.8)) },
-    PaperRow { method: "DM+Ours", cells: &[("run", 88.6, 53.8, 0.08), ("lrun", 89.4, 55.9, 0.08), ("rrun", 92.6, 54.2, 0.10), ("layup", 99.1, 50.9, 0.12), ("shot", 0.0, 0.0, 0.06)], tsr: &[("lrun", "rrun", 93.6), ("run", "rrun", 87.0), ("run", "shot", 0.0), ("layup", "run", 72.1)], avg: (73.9, 43.0, 0.088, Some(63.2)) },
-    PaperRow { method: "SM", cells: &[("run", 97.3, 40.3, 0.64), ("lrun", 71.9, 29.4, 0.49), ("rrun", 97.8, 22.9, 0.35), ("layup", 0.0, 0.0, 0.64), ("shot", 2.9, 1.3, 0.48)], tsr: &[("lrun", "rrun", 1.4), ("run", "rrun", 28.0), ("run", "shot", 0.8), ("layup", "run", 31.2)], avg: (54.0, 18.8, 0.52, Some(15.4)) },
-    PaperRow { method: "SM+eNSI", cells: &[("run", 98.1, 61.2, 0.38), ("lrun", 98.7, 59.8, 0.51), ("rrun", 97.1, 44.9, 0.36), ("layup", 23.1, 12.1, 0.62), ("shot", 0.0, 0.0, 0.39)], tsr: &[("lrun", "rrun", 37.2), ("run", "rrun", 77.3), ("run", "shot", 0.0), ("layup", "run", 49.3)], avg: (63.4, 35.6, 0.45, Some(41.0)) },
-    PaperRow { method: "SM+Ours", cells: &[("run", 99.8, 62.7, 0.37), ("lrun", 100.0, 42.2, 0.42), ("rrun", 99.7, 42.0, 0.34), ("layup", 96.6, 58.5, 0.57), ("shot", 100.0, 56.0, 0.46)], tsr: &[("lrun", "rrun", 100.0), ("run", "rrun", 99.7), ("run", "shot", 99.8), ("layup", "run", 99.8)], avg: (99.2, 52.3, 0.43, Some(99.8)) },
+    PaperRow {
+        method: "DM",
+        cells: &[
+            ("run", 89.2, 38.5, 0.09),
+            ("lrun", 70.4, 24.5, 0.10),
+            ("rrun", 87.5, 26.8, 0.06),
+            ("layup", 0.0, 0.0, 0.18),
+            ("shot", 0.0, 0.0, 0.12),
+        ],
+        tsr: &[
+            ("lrun", "rrun", 1.6),
+            ("run", "rrun", 17.1),
+            ("run", "shot", 0.0),
+            ("layup", "run", 50.2),
+        ],
+        avg: (49.4, 18.0, 0.11, Some(17.2)),
+    },
+    PaperRow {
+        method: "DM+eNSI",
+        cells: &[
+            ("run", 96.2, 56.3, 0.10),
+            ("lrun", 76.5, 38.7, 0.11),
+            ("rrun", 81.8, 29.5, 0.06),
+            ("layup", 1.0, 0.5, 0.20),
+            ("shot", 0.0, 0.0, 0.11),
+        ],
+        tsr: &[
+            ("lrun", "rrun", 2.9),
+            ("run", "rrun", 14.0),
+            ("run", "shot", 0.0),
+            ("layup", "run", 46.1),
+        ],
+        avg: (51.1, 25.0, 0.12, Some(15.8)),
+    },
+    PaperRow {
+        method: "DM+Ours",
+        cells: &[
+            ("run", 88.6, 53.8, 0.08),
+            ("lrun", 89.4, 55.9, 0.08),
+            ("rrun", 92.6, 54.2, 0.10),
+            ("layup", 99.1, 50.9, 0.12),
+            ("shot", 0.0, 0.0, 0.06),
+        ],
+        tsr: &[
+            ("lrun", "rrun", 93.6),
+            ("run", "rrun", 87.0),
+            ("run", "shot", 0.0),
+            ("layup", "run", 72.1),
+        ],
+        avg: (73.9, 43.0, 0.088, Some(63.2)),
+    },
+    PaperRow {
+        method: "SM",
+        cells: &[
+            ("run", 97.3, 40.3, 0.64),
+            ("lrun", 71.9, 29.4, 0.49),
+            ("rrun", 97.8, 22.9, 0.35),
+            ("layup", 0.0, 0.0, 0.64),
+            ("shot", 2.9, 1.3, 0.48),
+        ],
+        tsr: &[
+            ("lrun", "rrun", 1.4),
+            ("run", "rrun", 28.0),
+            ("run", "shot", 0.8),
+            ("layup", "run", 31.2),
+        ],
+        avg: (54.0, 18.8, 0.52, Some(15.4)),
+    },
+    PaperRow {
+        method: "SM+eNSI",
+        cells: &[
+            ("run", 98.1, 61.2, 0.38),
+            ("lrun", 98.7, 59.8, 0.51),
+            ("rrun", 97.1, 44.9, 0.36),
+            ("layup", 23.1, 12.1, 0.62),
+            ("shot", 0.0, 0.0, 0.39),
+        ],
+        tsr: &[
+            ("lrun", "rrun", 37.2),
+            ("run", "rrun", 77.3),
+            ("run", "shot", 0.0),
+            ("layup", "run", 49.3),
+        ],
+        avg: (63.4, 35.6, 0.45, Some(41.0)),
+    },
+    PaperRow {
+        method: "SM+Ours",
+        cells: &[
+            ("run", 99.8, 62.7, 0.37),
+            ("lrun", 100.0, 42.2, 0.42),
+            ("rrun", 99.7, 42.0, 0.34),
+            ("layup", 96.6, 58.5, 0.57),
+            ("shot", 100.0, 56.0, 0.46),
+        ],
+        tsr: &[
+            ("lrun", "rrun", 100.0),
+            ("run", "rrun", 99.7),
+            ("run", "shot", 99.8),
+            ("layup", "run", 99.8),
+        ],
+        avg: (99.2, 52.3, 0.43, Some(99.8)),
+    },
 ];
 
 /// Table 5 (Locomotion).
 pub const TABLE5: &[PaperRow] = &[
-    PaperRow { method: "DM", cells: &[("getup", 24.4, 24.9, 0.64), ("run_no_object", 46.5, 22.2, 0.73)], tsr: &[("getup", "run_no_object", 0.2), ("run_no_object", "getup", 22.4)], avg: (f64::NAN, f64::NAN, f64::NAN, None) },
-    PaperRow { method: "DM+eNSI", cells: &[("getup", 96.9, 97.9, 0.47), ("run_no_object", 93.2, 84.9, 0.65)], tsr: &[("getup", "run_no_object", 62.6), ("run_no_object", "getup", 5.7)], avg: (f64::NAN, f64::NAN, f64::NAN, None) },
-    PaperRow { method: "DM+Ours", cells: &[("getup", 98.5, 98.2, 0.54), ("run_no_object", 97.1, 81.5, 0.64)], tsr: &[("getup", "run_no_object", 67.2), ("run_no_object", "getup", 96.2)], avg: (f64::NAN, f64::NAN, f64::NAN, None) },
-    PaperRow { method: "SM", cells: &[("getup", 69.2, 66.0, 0.80), ("run_no_object", 74.0, 36.4, 0.78)], tsr: &[("getup", "run_no_object", 10.5), ("run_no_object", "getup", 44.9)], avg: (f64::NAN, f64::NAN, f64::NAN, None) },
-    PaperRow { method: "SM+eNSI", cells: &[("getup", 97.8, 97.3, 0.66), ("run_no_object", 99.4, 91.8, 0.77)], tsr: &[("getup", "run_no_object", 93.4), ("run_no_object", "getup", 12.7)], avg: (f64::NAN, f64::NAN, f64::NAN, None) },
-    PaperRow { method: "SM+Ours", cells: &[("getup", 99.1, 98.0, 0.64), ("run_no_object", 99.9, 91.0, 0.71)], tsr: &[("getup", "run_no_object", 97.9), ("run_no_object", "getup", 100.0)], avg: (f64::NAN, f64::NAN, f64::NAN, None) },
+    PaperRow {
+        method: "DM",
+        cells: &[
+            ("getup", 24.4, 24.9, 0.64),
+            ("run_no_object", 46.5, 22.2, 0.73),
+        ],
+        tsr: &[
+            ("getup", "run_no_object", 0.2),
+            ("run_no_object", "getup", 22.4),
+        ],
+        avg: (f64::NAN, f64::NAN, f64::NAN, None),
+    },
+    PaperRow {
+        method: "DM+eNSI",
+        cells: &[
+            ("getup", 96.9, 97.9, 0.47),
+            ("run_no_object", 93.2, 84.9, 0.65),
+        ],
+        tsr: &[
+            ("getup", "run_no_object", 62.6),
+            ("run_no_object", "getup", 5.7),
+        ],
+        avg: (f64::NAN, f64::NAN, f64::NAN, None),
+    },
+    PaperRow {
+        method: "DM+Ours",
+        cells: &[
+            ("getup", 98.5, 98.2, 0.54),
+            ("run_no_object", 97.1, 81.5, 0.64),
+        ],
+        tsr: &[
+            ("getup", "run_no_object", 67.2),
+            ("run_no_object", "getup", 96.2),
+        ],
+        avg: (f64::NAN, f64::NAN, f64::NAN, None),
+    },
+    PaperRow {
+        method: "SM",
+        cells: &[
+            ("getup", 69.2, 66.0, 0.80),
+            ("run_no_object", 74.0, 36.4, 0.78),
+        ],
+        tsr: &[
+            ("getup", "run_no_object", 10.5),
+            ("run_no_object", "getup", 44.9),
+        ],
+        avg: (f64::NAN, f64::NAN, f64::NAN, None),
+    },
+    PaperRow {
+        method: "SM+eNSI",
+        cells: &[
+            ("getup", 97.8, 97.3, 0.66),
+            ("run_no_object", 99.4, 91.8, 0.77),
+        ],
+        tsr: &[
+            ("getup", "run_no_object", 93.4),
+            ("run_no_object", "getup", 12.7),
+        ],
+        avg: (f64::NAN, f64::NAN, f64::NAN, None),
+    },
+    PaperRow {
+        method: "SM+Ours",
+        cells: &[
+            ("getup", 99.1, 98.0, 0.64),
+            ("run_no_object", 99.9, 91.0, 0.71),
+        ],
+        tsr: &[
+            ("getup", "run_no_object", 97.9),
+            ("run_no_object", "getup", 100.0),
+        ],
+        avg: (f64::NAN, f64::NAN, f64::NAN, None),
+    },
 ];
 
 /// Table 2 (ParaHome).
 pub const TABLE2: &[PaperRow] = &[
-    PaperRow { method: "SM", cells: &[("place_pan", 38.4, 1.0, 0.92), ("place_kettle", 0.0, 0.0, 0.51), ("place_book", 0.0, 0.0, 0.53), ("drink_cup", 0.0, 0.0, 0.39), ("pour_kettle", 0.0, 0.0, 0.84), ("getup_chair", 0.0, 0.0, 0.55), ("pour_kettlecup", 0.0, 0.0, 0.79)], tsr: &[], avg: (5.5, 0.1, 0.65, None) },
-    PaperRow { method: "SM+eNSI", cells: &[("place_pan", 100.0, 16.2, 0.88), ("place_kettle", 0.0, 0.0, 0.53), ("place_book", 0.0, 0.0, 0.32), ("drink_cup", 0.0, 0.0, 0.42), ("pour_kettle", 0.0, 0.0, 0.67), ("getup_chair", 0.0, 0.0, 0.55), ("pour_kettlecup", 0.0, 0.0, 0.74)], tsr: &[], avg: (14.3, 2.3, 0.59, None) },
-    PaperRow { method: "SM+T", cells: &[("place_pan", 51.6, 12.6, 0.93), ("place_kettle", 0.0, 0.0, 0.30), ("place_book", 100.0, 12.1, 0.85), ("drink_cup", 99.9, 20.3, 0.84), ("pour_kettle", 100.0, 21.5, 0.95), ("getup_chair", 0.0, 0.0, 0.63), ("pour_kettlecup", 48.1, 8.0, 0.86)], tsr: &[], avg: (57.1, 15.6, 0.77, None) },
-    PaperRow { method: "SM+Ours", cells: &[("place_pan", 100.0, 22.2, 0.86), ("place_kettle", 100.0, 49.9, 0.52), ("place_book", 100.0, 82.4, 0.86), ("drink_cup", 100.0, 33.9, 0.89), ("pour_kettle", 99.9, 22.5, 0.93), ("getup_chair", 100.0, 46.6, 0.74), ("pour_kettlecup", 100.0, 23.1, 0.87)], tsr: &[], avg: (100.0, 40.1, 0.81, None) },
+    PaperRow {
+        method: "SM",
+        cells: &[
+            ("place_pan", 38.4, 1.0, 0.92),
+            ("place_kettle", 0.0, 0.0, 0.51),
+            ("place_book", 0.0, 0.0, 0.53),
+            ("drink_cup", 0.0, 0.0, 0.39),
+            ("pour_kettle", 0.0, 0.0, 0.84),
+            ("getup_chair", 0.0, 0.0, 0.55),
+            ("pour_kettlecup", 0.0, 0.0, 0.79),
+        ],
+        tsr: &[],
+        avg: (5.5, 0.1, 0.65, None),
+    },
+    PaperRow {
+        method: "SM+eNSI",
+        cells: &[
+            ("place_pan", 100.0, 16.2, 0.88),
+            ("place_kettle", 0.0, 0.0, 0.53),
+            ("place_book", 0.0, 0.0, 0.32),
+            ("drink_cup", 0.0, 0.0, 0.42),
+            ("pour_kettle", 0.0, 0.0, 0.67),
+            ("getup_chair", 0.0, 0.0, 0.55),
+            ("pour_kettlecup", 0.0, 0.0, 0.74),
+        ],
+        tsr: &[],
+        avg: (14.3, 2.3, 0.59, None),
+    },
+    PaperRow {
+        method: "SM+T",
+        cells: &[
+            ("place_pan", 51.6, 12.6, 0.93),
+            ("place_kettle", 0.0, 0.0, 0.30),
+            ("place_book", 100.0, 12.1, 0.85),
+            ("drink_cup", 99.9, 20.3, 0.84),
+            ("pour_kettle", 100.0, 21.5, 0.95),
+            ("getup_chair", 0.0, 0.0, 0.63),
+            ("pour_kettlecup", 48.1, 8.0, 0.86),
+        ],
+        tsr: &[],
+        avg: (57.1, 15.6, 0.77, None),
+    },
+    PaperRow {
+        method: "SM+Ours",
+        cells: &[
+            ("place_pan", 100.0, 22.2, 0.86),
+            ("place_kettle", 100.0, 49.9, 0.52),
+            ("place_book", 100.0, 82.4, 0.86),
+            ("drink_cup", 100.0, 33.9, 0.89),
+            ("pour_kettle", 99.9, 22.5, 0.93),
+            ("getup_chair", 100.0, 46.6, 0.74),
+            ("pour_kettlecup", 100.0, 23.1, 0.87),
+        ],
+        tsr: &[],
+        avg: (100.0, 40.1, 0.81, None),
+    },
 ];
 
 /// Column names the paper uses for skill ids.
@@ -66,7 +280,8 @@ pub fn display_name(skill: &str) -> String {
             .split('_')
             .map(|w| {
                 let mut c = w.chars();
-                c.next().map_or(String::new(), |f| f.to_uppercase().chain(c).collect())
+                c.next()
+                    .map_or(String::new(), |f| f.to_uppercase().chain(c).collect())
             })
             .collect::<Vec<_>>()
             .join("-"),
@@ -97,12 +312,17 @@ pub fn load(path: &Path) -> Result<Vec<MethodRow>> {
     let df = read(path)?;
     for c in ["label", "metric", "from_skill", "to_skill", "value"] {
         if df.column(c).is_err() {
-            bail!("{}: no column `{c}`: not an eval_summary table", path.display());
+            bail!(
+                "{}: no column `{c}`: not an eval_summary table",
+                path.display()
+            );
         }
     }
     let s = |c: &str| -> Result<Vec<String>> {
         let col = df.column(c)?.str()?.clone();
-        Ok((0..col.len()).map(|i| col.get(i).unwrap_or_default().to_string()).collect())
+        Ok((0..col.len())
+            .map(|i| col.get(i).unwrap_or_default().to_string())
+            .collect())
     };
     let (label, metric, from, to) = (s("label")?, s("metric")?, s("from_skill")?, s("to_skill")?);
     let vc = df.column("value")?.f64()?.clone();
@@ -142,8 +362,16 @@ pub fn load(path: &Path) -> Result<Vec<MethodRow>> {
 pub fn paper_row(p: &PaperRow) -> MethodRow {
     MethodRow {
         label: format!("paper: {}", p.method),
-        cells: p.cells.iter().map(|(s, a, b, c)| (s.to_string(), (*a, *b, *c))).collect(),
-        tsr: p.tsr.iter().map(|(a, b, v)| ((a.to_string(), b.to_string()), *v)).collect(),
+        cells: p
+            .cells
+            .iter()
+            .map(|(s, a, b, c)| (s.to_string(), (*a, *b, *c)))
+            .collect(),
+        tsr: p
+            .tsr
+            .iter()
+            .map(|(a, b, v)| ((a.to_string(), b.to_string()), *v))
+            .collect(),
     }
 }
 
@@ -158,13 +386,26 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
 
 /// The per-skill average cell (SR, εNSR, NR) and the TSR average of a row
 /// over `skills` and `pairs`.
-pub fn averages(r: &MethodRow, skills: &[String], pairs: &[(String, String)]) -> (f64, f64, f64, f64) {
-    let cell = |s: &String| r.cells.get(s).copied().unwrap_or((f64::NAN, f64::NAN, f64::NAN));
+pub fn averages(
+    r: &MethodRow,
+    skills: &[String],
+    pairs: &[(String, String)],
+) -> (f64, f64, f64, f64) {
+    let cell = |s: &String| {
+        r.cells
+            .get(s)
+            .copied()
+            .unwrap_or((f64::NAN, f64::NAN, f64::NAN))
+    };
     (
         mean(skills.iter().map(|s| cell(s).0)),
         mean(skills.iter().map(|s| cell(s).1)),
         mean(skills.iter().map(|s| cell(s).2)),
-        mean(pairs.iter().map(|p| r.tsr.get(p).copied().unwrap_or(f64::NAN))),
+        mean(
+            pairs
+                .iter()
+                .map(|p| r.tsr.get(p).copied().unwrap_or(f64::NAN)),
+        ),
     )
 }
 
@@ -187,8 +428,20 @@ fn nr(v: f64) -> String {
 /// Render rows as (header, body rows) of text cells.
 pub fn table(rows: &[MethodRow]) -> (Vec<String>, Vec<Vec<String>>) {
     let order = [
-        "run", "lrun", "rrun", "layup", "shot", "getup", "run_no_object", "place_pan",
-        "place_kettle", "place_book", "drink_cup", "pour_kettle", "getup_chair", "pour_kettlecup",
+        "run",
+        "lrun",
+        "rrun",
+        "layup",
+        "shot",
+        "getup",
+        "run_no_object",
+        "place_pan",
+        "place_kettle",
+        "place_book",
+        "drink_cup",
+        "pour_kettle",
+        "getup_chair",
+        "pour_kettlecup",
     ];
     let mut skills: Vec<String> = Vec::new();
     let mut pairs: Vec<(String, String)> = Vec::new();
@@ -225,7 +478,11 @@ pub fn table(rows: &[MethodRow]) -> (Vec<String>, Vec<Vec<String>>) {
     let mut header = vec!["Method".to_string()];
     header.extend(skills.iter().map(|s| display_name(s)));
     header.push("Avg.".into());
-    header.extend(pairs.iter().map(|(a, b)| format!("TSR {}-{}", display_name(a), display_name(b))));
+    header.extend(
+        pairs
+            .iter()
+            .map(|(a, b)| format!("TSR {}-{}", display_name(a), display_name(b))),
+    );
     if !pairs.is_empty() {
         header.push("TSR Avg.".into());
     }
@@ -234,7 +491,11 @@ pub fn table(rows: &[MethodRow]) -> (Vec<String>, Vec<Vec<String>>) {
         .map(|r| {
             let mut v = vec![r.label.clone()];
             for s in &skills {
-                let c = r.cells.get(s).copied().unwrap_or((f64::NAN, f64::NAN, f64::NAN));
+                let c = r
+                    .cells
+                    .get(s)
+                    .copied()
+                    .unwrap_or((f64::NAN, f64::NAN, f64::NAN));
                 v.push(format!("{} / {} / {}", pct(c.0), pct(c.1), nr(c.2)));
             }
             let (a, b, c, t) = averages(r, &skills, &pairs);
@@ -253,7 +514,11 @@ pub fn table(rows: &[MethodRow]) -> (Vec<String>, Vec<Vec<String>>) {
 
 /// Markdown text of a table.
 pub fn markdown(header: &[String], body: &[Vec<String>]) -> String {
-    let mut s = format!("| {} |\n|{}|\n", header.join(" | "), vec!["---"; header.len()].join("|"));
+    let mut s = format!(
+        "| {} |\n|{}|\n",
+        header.join(" | "),
+        vec!["---"; header.len()].join("|")
+    );
     for r in body {
         s += &format!("| {} |\n", r.join(" | "));
     }
@@ -263,18 +528,35 @@ pub fn markdown(header: &[String], body: &[Vec<String>]) -> String {
 /// Aligned terminal text of a table.
 pub fn text(header: &[String], body: &[Vec<String>]) -> String {
     let w: Vec<usize> = (0..header.len())
-        .map(|i| body.iter().map(|r| r[i].len()).chain([header[i].len()]).max().unwrap_or(0))
+        .map(|i| {
+            body.iter()
+                .map(|r| r[i].len())
+                .chain([header[i].len()])
+                .max()
+                .unwrap_or(0)
+        })
         .collect();
     let line = |r: &[String]| {
         r.iter()
             .enumerate()
-            .map(|(i, c)| if i == 0 { format!("{c:<w$}", w = w[i]) } else { format!("{c:>w$}", w = w[i]) })
+            .map(|(i, c)| {
+                if i == 0 {
+                    format!("{c:<w$}", w = w[i])
+                } else {
+                    format!("{c:>w$}", w = w[i])
+                }
+            })
             .collect::<Vec<_>>()
             .join("  ")
             + "\n"
     };
     let mut s = line(header);
-    s += &(w.iter().map(|n| "-".repeat(*n)).collect::<Vec<_>>().join("  ") + "\n");
+    s += &(w
+        .iter()
+        .map(|n| "-".repeat(*n))
+        .collect::<Vec<_>>()
+        .join("  ")
+        + "\n");
     for r in body {
         s += &line(r);
     }
@@ -286,7 +568,14 @@ fn paper_table(rows: &[MethodRow]) -> &'static [PaperRow] {
     let has = |s: &str| rows.iter().any(|r| r.cells.contains_key(s));
     if has("getup") || has("run_no_object") {
         TABLE5
-    } else if has("place_pan") || has("drink_cup") || has("pour_kettle") || has("getup_chair") || has("place_kettle") || has("place_book") || has("pour_kettlecup") {
+    } else if has("place_pan")
+        || has("drink_cup")
+        || has("pour_kettle")
+        || has("getup_chair")
+        || has("place_kettle")
+        || has("place_book")
+        || has("pour_kettlecup")
+    {
         TABLE2
     } else {
         TABLE1
@@ -300,7 +589,11 @@ pub fn run(inputs: &[PathBuf], with_reference: bool, markdown_out: Option<&Path>
     }
     let mut rows = Vec::new();
     for p in inputs {
-        let f = if p.is_dir() { p.join("eval_summary.parquet") } else { p.clone() };
+        let f = if p.is_dir() {
+            p.join("eval_summary.parquet")
+        } else {
+            p.clone()
+        };
         rows.extend(load(&f)?);
     }
     if with_reference {
@@ -311,7 +604,8 @@ pub fn run(inputs: &[PathBuf], with_reference: bool, markdown_out: Option<&Path>
     println!("cells: SR % / eps-NSR % / NR; TSR in %");
     if let Some(m) = markdown_out {
         let tmp = m.with_extension("md.tmp");
-        std::fs::write(&tmp, markdown(&h, &b)).with_context(|| format!("cannot write {}", tmp.display()))?;
+        std::fs::write(&tmp, markdown(&h, &b))
+            .with_context(|| format!("cannot write {}", tmp.display()))?;
         std::fs::rename(&tmp, m)?;
         println!("wrote {}", m.display());
     }
@@ -337,18 +631,37 @@ mod tests {
                 if p.avg.0.is_nan() {
                     continue; // Table 5 prints no Avg.
                 }
-                assert!((a - p.avg.0).abs() <= 0.051, "{}: SR avg {a} vs {}", p.method, p.avg.0);
+                assert!(
+                    (a - p.avg.0).abs() <= 0.051,
+                    "{}: SR avg {a} vs {}",
+                    p.method,
+                    p.avg.0
+                );
                 // Table 2's SM+T eNSR Avg. (15.6) is not the mean of its cells
                 // (10.64): a known inconsistency of the paper (paper-results.md, 11)
                 if !(p.method == "SM+T" && std::ptr::eq(t, TABLE2)) {
-                    assert!((b - p.avg.1).abs() <= 0.051, "{}: eNSR avg {b} vs {}", p.method, p.avg.1);
+                    assert!(
+                        (b - p.avg.1).abs() <= 0.051,
+                        "{}: eNSR avg {b} vs {}",
+                        p.method,
+                        p.avg.1
+                    );
                 } else {
                     assert!((b - 10.64).abs() < 0.01);
                 }
                 // NR is printed to two decimals (three for DM+Ours)
-                assert!((c - p.avg.2).abs() <= 0.0051, "{}: NR avg {c} vs {}", p.method, p.avg.2);
+                assert!(
+                    (c - p.avg.2).abs() <= 0.0051,
+                    "{}: NR avg {c} vs {}",
+                    p.method,
+                    p.avg.2
+                );
                 if let Some(tsr) = p.avg.3 {
-                    assert!((d - tsr).abs() <= 0.051, "{}: TSR avg {d} vs {tsr}", p.method);
+                    assert!(
+                        (d - tsr).abs() <= 0.051,
+                        "{}: TSR avg {d} vs {tsr}",
+                        p.method
+                    );
                 }
             }
         }

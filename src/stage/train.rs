@@ -199,7 +199,19 @@ impl TrainConfig {
         macro_rules! set {
             ($($f:ident),*) => {$(if let Some(v) = &o.$f { c.$f = v.clone(); })*};
         }
-        set!(hidden, lr, minibatch, epochs, sigma, sigma_is_variance, gamma, lambda, clip, critic_coef, bounds_coef);
+        set!(
+            hidden,
+            lr,
+            minibatch,
+            epochs,
+            sigma,
+            sigma_is_variance,
+            gamma,
+            lambda,
+            clip,
+            critic_coef,
+            bounds_coef
+        );
         c
     }
 
@@ -216,7 +228,10 @@ impl TrainConfig {
         );
         ensure!(self.episode_length > 0, "train.episode_length must be > 0");
         ensure!(self.samples > 0, "train.samples must be > 0");
-        ensure!(self.checkpoint_every > 0, "train.checkpoint_every must be > 0");
+        ensure!(
+            self.checkpoint_every > 0,
+            "train.checkpoint_every must be > 0"
+        );
         Ok(())
     }
 }
@@ -503,7 +518,12 @@ fn ckpt_dir(out: &Path) -> PathBuf {
 }
 
 /// Write a checkpoint: into `checkpoint.tmp/`, then swapped into place.
-fn save_checkpoint(out: &Path, agent: &Agent, st: &TrainerState, recs: &[EpisodeRecord]) -> Result<()> {
+fn save_checkpoint(
+    out: &Path,
+    agent: &Agent,
+    st: &TrainerState,
+    recs: &[EpisodeRecord],
+) -> Result<()> {
     let tmp = out.join("checkpoint.tmp");
     let old = out.join("checkpoint.old");
     if tmp.exists() {
@@ -535,7 +555,10 @@ fn save_checkpoint(out: &Path, agent: &Agent, st: &TrainerState, recs: &[Episode
 
 /// Load a checkpoint (`checkpoint/`, or `checkpoint.old/` when a swap was
 /// interrupted).
-fn load_checkpoint(out: &Path, dev: &candle_core::Device) -> Result<(Agent, TrainerState, Vec<EpisodeRecord>)> {
+fn load_checkpoint(
+    out: &Path,
+    dev: &candle_core::Device,
+) -> Result<(Agent, TrainerState, Vec<EpisodeRecord>)> {
     let mut dir = ckpt_dir(out);
     if !dir.join("state.json").is_file() {
         dir = out.join("checkpoint.old");
@@ -548,7 +571,12 @@ fn load_checkpoint(out: &Path, dev: &candle_core::Device) -> Result<(Agent, Trai
     let sp = dir.join("state.json");
     let st: TrainerState = serde_json::from_slice(&std::fs::read(&sp)?)
         .with_context(|| format!("{} is not a skillaug training checkpoint", sp.display()))?;
-    ensure!(st.format == 1, "{}: checkpoint format {}", sp.display(), st.format);
+    ensure!(
+        st.format == 1,
+        "{}: checkpoint format {}",
+        sp.display(),
+        st.format
+    );
     let agent = Agent::load(&dir.join("agent.safetensors"), dev)?;
     let bytes = std::fs::read(dir.join("episodes.bin"))?;
     let total: usize = st.episodes.iter().map(|e| e.actions).sum();
@@ -645,7 +673,11 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
         seed32.copy_from_slice(&st.rng_seed);
         let mut r = ChaCha8Rng::from_seed(seed32);
         r.set_stream(st.rng_stream);
-        r.set_word_pos(st.rng_word_pos.parse::<u128>().context("checkpoint: RNG position")?);
+        r.set_word_pos(
+            st.rng_word_pos
+                .parse::<u128>()
+                .context("checkpoint: RNG position")?,
+        );
         rng = r;
         agent = a;
         ensure!(
@@ -669,7 +701,11 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
     let quiet = common.args.quiet;
     if !quiet {
         let skills: Vec<&str> = {
-            let mut v: Vec<&str> = s.clips.iter().map(|c| s.lib.clips[*c].skill.as_str()).collect();
+            let mut v: Vec<&str> = s
+                .clips
+                .iter()
+                .map(|c| s.lib.clips[*c].skill.as_str())
+                .collect();
             v.dedup();
             v
         };
@@ -760,9 +796,9 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
             st.mean_length(),
             100.0 * st.fall_rate()
         ));
-        if quiet || bar.is_hidden() {
-            if !quiet {
-                println!(
+        // without a terminal (logs), one line per iteration instead of the bar
+        if !quiet && bar.is_hidden() {
+            println!(
                     "iter {iteration:>5} samples {samples:>9} reward {:.4} sm {:.4} len {:5.1} falls {:5.1}% {:.0} samples/s (sim {:.1} s, act {:.1} s, update {:.1} s)",
                     st.mean_reward(),
                     st.mean_sm(),
@@ -773,7 +809,6 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
                     collect_s - sim_s,
                     update_s
                 );
-            }
         }
         let last = samples >= cfg.samples;
         if iteration % cfg.checkpoint_every == 0 || last {
@@ -810,11 +845,19 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
         dataset: dataset.clone(),
         skeleton: s.lib.skeleton.name().to_string(),
         skills: {
-            let mut v: Vec<String> = s.clips.iter().map(|c| s.lib.clips[*c].skill.clone()).collect();
+            let mut v: Vec<String> = s
+                .clips
+                .iter()
+                .map(|c| s.lib.clips[*c].skill.clone())
+                .collect();
             v.dedup();
             v
         },
-        clips: s.clips.iter().map(|c| s.lib.clips[*c].name.clone()).collect(),
+        clips: s
+            .clips
+            .iter()
+            .map(|c| s.lib.clips[*c].name.clone())
+            .collect(),
         objects: s.lib.clips[s.clips[0]].objects.clone(),
         obs_dim: env.obs_dim(),
         act_dim: env.act_dim(),

@@ -57,15 +57,45 @@ pub struct SummaryRow {
 pub fn trial_columns() -> Vec<ColumnSpec> {
     use DataType::*;
     vec![
-        ColumnSpec::new("label", Utf8, false, "method label of the evaluated policy (e.g. SM+STG+STF+ATS+HE)"),
+        ColumnSpec::new(
+            "label",
+            Utf8,
+            false,
+            "method label of the evaluated policy (e.g. SM+STG+STF+ATS+HE)",
+        ),
         ColumnSpec::new("metric", Utf8, false, "sr, tsr, nsr (epsilon-NSR) or nr"),
-        ColumnSpec::new("from_skill", Utf8, false, "skill whose reference frames start the trial"),
-        ColumnSpec::new("to_skill", Utf8, false, "skill of the condition and of the success rule"),
+        ColumnSpec::new(
+            "from_skill",
+            Utf8,
+            false,
+            "skill whose reference frames start the trial",
+        ),
+        ColumnSpec::new(
+            "to_skill",
+            Utf8,
+            false,
+            "skill of the condition and of the success rule",
+        ),
         ColumnSpec::new("trial", UInt32, false, "trial index within the cell"),
-        ColumnSpec::new("success", Boolean, true, "verdict of the success rule (null for nr)"),
+        ColumnSpec::new(
+            "success",
+            Boolean,
+            true,
+            "verdict of the success rule (null for nr)",
+        ),
         ColumnSpec::new("steps", UInt32, false, "policy steps of the trial"),
-        ColumnSpec::new("mean_sm", Float64, false, "mean SM reward per step with a reference frame (NaN if none)"),
-        ColumnSpec::new("final_root_z", Float32, false, "root height at the end of the trial, m"),
+        ColumnSpec::new(
+            "mean_sm",
+            Float64,
+            false,
+            "mean SM reward per step with a reference frame (NaN if none)",
+        ),
+        ColumnSpec::new(
+            "final_root_z",
+            Float32,
+            false,
+            "root height at the end of the trial, m",
+        ),
     ]
 }
 
@@ -79,9 +109,24 @@ pub fn summary_columns() -> Vec<ColumnSpec> {
         ColumnSpec::new("to_skill", Utf8, false, "condition / rule skill"),
         ColumnSpec::new("trials", UInt32, false, "trials in the cell"),
         ColumnSpec::new("successes", UInt32, false, "successful trials (0 for nr)"),
-        ColumnSpec::new("value", Float64, false, "success rate in [0, 1]; for nr the mean SM reward per step"),
-        ColumnSpec::new("ci_low", Float64, false, "95 % Wilson interval, lower end (NaN for nr)"),
-        ColumnSpec::new("ci_high", Float64, false, "95 % Wilson interval, upper end (NaN for nr)"),
+        ColumnSpec::new(
+            "value",
+            Float64,
+            false,
+            "success rate in [0, 1]; for nr the mean SM reward per step",
+        ),
+        ColumnSpec::new(
+            "ci_low",
+            Float64,
+            false,
+            "95 % Wilson interval, lower end (NaN for nr)",
+        ),
+        ColumnSpec::new(
+            "ci_high",
+            Float64,
+            false,
+            "95 % Wilson interval, upper end (NaN for nr)",
+        ),
     ]
 }
 
@@ -96,10 +141,16 @@ pub fn trials_batch(label: &str, rows: &[TrialRow]) -> Result<RecordBatch> {
         s(&|r| &r.from),
         s(&|r| &r.to),
         Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.trial))),
-        Arc::new(BooleanArray::from(rows.iter().map(|r| r.success).collect::<Vec<_>>())),
+        Arc::new(BooleanArray::from(
+            rows.iter().map(|r| r.success).collect::<Vec<_>>(),
+        )),
         Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.steps))),
-        Arc::new(Float64Array::from_iter_values(rows.iter().map(|r| r.mean_sm))),
-        Arc::new(Float32Array::from_iter_values(rows.iter().map(|r| r.final_root_z))),
+        Arc::new(Float64Array::from_iter_values(
+            rows.iter().map(|r| r.mean_sm),
+        )),
+        Arc::new(Float32Array::from_iter_values(
+            rows.iter().map(|r| r.final_root_z),
+        )),
     ];
     Ok(RecordBatch::try_new(schema_of(&trial_columns()), arrays)?)
 }
@@ -118,7 +169,9 @@ pub fn summary_batch(rows: &[SummaryRow]) -> Result<RecordBatch> {
         s(&|r| &r.from),
         s(&|r| &r.to),
         Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.trials))),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.successes))),
+        Arc::new(UInt32Array::from_iter_values(
+            rows.iter().map(|r| r.successes),
+        )),
         fl(&|r| r.value),
         fl(&|r| r.lo),
         fl(&|r| r.hi),
@@ -130,33 +183,44 @@ pub fn summary_batch(rows: &[SummaryRow]) -> Result<RecordBatch> {
 /// reward per step (a polars group-by), then the rate and its Wilson interval.
 pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
     let strs = |f: &dyn Fn(&TrialRow) -> String| rows.iter().map(f).collect::<Vec<String>>();
-    let df = DataFrame::new(rows.len(), vec![
-        Series::new("metric".into(), strs(&|r| r.metric.clone())).into(),
-        Series::new("from".into(), strs(&|r| r.from.clone())).into(),
-        Series::new("to".into(), strs(&|r| r.to.clone())).into(),
-        Series::new(
-            "ok".into(),
-            rows.iter().map(|r| r.success.unwrap_or(false) as u32).collect::<Vec<u32>>(),
-        )
-        .into(),
-        Series::new(
-            "sm".into(),
-            rows.iter()
-                .map(|r| (!r.mean_sm.is_nan()).then_some(r.mean_sm))
-                .collect::<Vec<Option<f64>>>(),
-        )
-        .into(),
-    ])?;
+    let df = DataFrame::new(
+        rows.len(),
+        vec![
+            Series::new("metric".into(), strs(&|r| r.metric.clone())).into(),
+            Series::new("from".into(), strs(&|r| r.from.clone())).into(),
+            Series::new("to".into(), strs(&|r| r.to.clone())).into(),
+            Series::new(
+                "ok".into(),
+                rows.iter()
+                    .map(|r| r.success.unwrap_or(false) as u32)
+                    .collect::<Vec<u32>>(),
+            )
+            .into(),
+            Series::new(
+                "sm".into(),
+                rows.iter()
+                    .map(|r| (!r.mean_sm.is_nan()).then_some(r.mean_sm))
+                    .collect::<Vec<Option<f64>>>(),
+            )
+            .into(),
+        ],
+    )?;
     let g = df
         .lazy()
         .group_by([col("metric"), col("from"), col("to")])
-        .agg([len().alias("n"), col("ok").sum().alias("k"), col("sm").mean().alias("sm")])
+        .agg([
+            len().alias("n"),
+            col("ok").sum().alias("k"),
+            col("sm").mean().alias("sm"),
+        ])
         .sort(["metric", "from", "to"], SortMultipleOptions::default())
         .collect()
         .context("eval summary")?;
     let text = |name: &str| -> Result<Vec<String>> {
         let c = g.column(name)?.str()?.clone();
-        Ok((0..c.len()).map(|i| c.get(i).unwrap_or_default().to_string()).collect())
+        Ok((0..c.len())
+            .map(|i| c.get(i).unwrap_or_default().to_string())
+            .collect())
     };
     let (m, f, t) = (text("metric")?, text("from")?, text("to")?);
     let u32s = |name: &str| -> Result<Vec<u32>> {
@@ -166,7 +230,9 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
     };
     let (n, k) = (u32s("n")?, u32s("k")?);
     let smc = g.column("sm")?.f64()?.clone();
-    let sm: Vec<f64> = (0..smc.len()).map(|i| smc.get(i).unwrap_or(f64::NAN)).collect();
+    let sm: Vec<f64> = (0..smc.len())
+        .map(|i| smc.get(i).unwrap_or(f64::NAN))
+        .collect();
     let mut out = Vec::with_capacity(m.len());
     for i in 0..m.len() {
         let nr = m[i] == "nr";
@@ -182,7 +248,11 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
             to: t[i].clone(),
             trials: n[i],
             successes: if nr { 0 } else { k[i] },
-            value: if nr { sm[i] } else { k[i] as f64 / n[i].max(1) as f64 },
+            value: if nr {
+                sm[i]
+            } else {
+                k[i] as f64 / n[i].max(1) as f64
+            },
             lo,
             hi,
         });

@@ -9,8 +9,8 @@
 //! the same text, checked by a test.
 
 pub mod clips;
-pub mod eval;
 pub mod columns;
+pub mod eval;
 pub mod frames;
 pub mod he;
 pub mod io;

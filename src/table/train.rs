@@ -70,8 +70,18 @@ impl MetricRow {
 /// Columns of `train_metrics.parquet`.
 pub fn columns() -> Vec<ColumnSpec> {
     let mut v = vec![
-        ColumnSpec::new("iteration", DataType::UInt64, false, "PPO iteration, from 1"),
-        ColumnSpec::new("samples", DataType::UInt64, false, "samples collected so far (environment steps over all environments)"),
+        ColumnSpec::new(
+            "iteration",
+            DataType::UInt64,
+            false,
+            "PPO iteration, from 1",
+        ),
+        ColumnSpec::new(
+            "samples",
+            DataType::UInt64,
+            false,
+            "samples collected so far (environment steps over all environments)",
+        ),
     ];
     for (name, doc) in METRICS {
         v.push(ColumnSpec::new(name, DataType::Float64, false, doc));
@@ -85,8 +95,12 @@ pub fn batch(rows: &[MetricRow]) -> Result<RecordBatch> {
         ensure!(r.values.len() == METRICS.len(), "train metrics row width");
     }
     let mut arrays: Vec<ArrayRef> = vec![
-        Arc::new(UInt64Array::from_iter_values(rows.iter().map(|r| r.iteration))),
-        Arc::new(UInt64Array::from_iter_values(rows.iter().map(|r| r.samples))),
+        Arc::new(UInt64Array::from_iter_values(
+            rows.iter().map(|r| r.iteration),
+        )),
+        Arc::new(UInt64Array::from_iter_values(
+            rows.iter().map(|r| r.samples),
+        )),
     ];
     for i in 0..METRICS.len() {
         arrays.push(Arc::new(Float64Array::from_iter_values(
