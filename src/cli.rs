@@ -15,6 +15,8 @@ pub struct Cli {
 /// Subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Run a whole experiment from one recipe: every stage, each method, then the report
+    Run(RunArgs),
     /// Read motion clips (.pt) into clips.parquet and frames.parquet
     Ingest(IngestArgs),
     /// Build the Stitched Trajectory Graph between skills (stg_edges.parquet)
@@ -139,6 +141,17 @@ pub struct EvalArgs {
     /// Output folder of `skillaug train` (policy.safetensors, policy.meta.json).
     #[arg(long, value_name = "DIR")]
     pub policy: PathBuf,
+}
+
+/// `skillaug run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// The recipe (stages/*.toml) with a `[run]` table.
+    #[arg(value_name = "RECIPE")]
+    pub file: PathBuf,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub common: StageArgs,
 }
 
 /// `skillaug report`.

@@ -19,6 +19,7 @@ pub const STAGES: &[&str] = &[
     "pretrain-he",
     "train",
     "eval",
+    "run",
 ];
 
 /// A parsed recipe (empty when no file is given).

@@ -29,6 +29,7 @@ use cli::{Cli, Command};
 /// Run one parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Command::Run(a) => stage::run::run(&a.file, a.common),
         Command::Ingest(a) => stage::ingest::run(&stage::Common::new(a.common)?, a.skip_bad),
         Command::BuildStg(a) => stage::build_stg::run(&stage::Common::new(a.common)?, a.per_target),
         Command::SampleStf(a) => stage::sample_stf::run(&stage::Common::new(a.common)?),

@@ -10,6 +10,7 @@ pub mod inspect;
 pub mod plot;
 pub mod pretrain_he;
 pub mod report;
+pub mod run;
 pub mod sample_stf;
 pub mod schema;
 pub mod train;

@@ -238,7 +238,7 @@ impl TrainConfig {
 
 /// Command-line switches of `skillaug train` (each, when given, overrides
 /// the recipe).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Switches {
     /// `--method`.
     pub method: Option<Method>,
