@@ -30,7 +30,10 @@ fn the_smoke_recipe_runs_resumes_and_skips() {
         .unwrap();
     let t = std::time::Instant::now();
     while !lock_has_started(&out, "train:SM") {
-        assert!(child.try_wait().unwrap().is_none(), "the run ended before it could be killed");
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before it could be killed"
+        );
         assert!(t.elapsed().as_secs() < 300, "training never started");
         std::thread::sleep(std::time::Duration::from_millis(5));
     }
@@ -38,15 +41,23 @@ fn the_smoke_recipe_runs_resumes_and_skips() {
     child.wait().unwrap();
 
     let text = ok(&args);
-    for done in ["ingest: up to date", "pretrain-he: up to date", "run: train:SM (resuming)"] {
+    for done in [
+        "ingest: up to date",
+        "pretrain-he: up to date",
+        "run: train:SM (resuming)",
+    ] {
         assert!(text.contains(done), "missing `{done}` in:\n{text}");
     }
-    assert!(text.contains("paper: SM+Ours"), "the run ends with the report:\n{text}");
+    assert!(
+        text.contains("paper: SM+Ours"),
+        "the run ends with the report:\n{text}"
+    );
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(md.lines().any(|l| l.starts_with("| SM |")), "{md}");
     assert!(md.lines().any(|l| l.starts_with("| SM+Ours |")), "{md}");
     // SM+Ours trained with every component: its starts were not all plain
-    let m = skillaug::table::io::read_parquet(&out.join("train/SM+Ours/train_metrics.parquet")).unwrap();
+    let m = skillaug::table::io::read_parquet(&out.join("train/SM+Ours/train_metrics.parquet"))
+        .unwrap();
     use arrow::array::AsArray;
     let stg = m.batches[0]
         .column_by_name("stg_start_frac")
@@ -63,6 +74,9 @@ fn the_smoke_recipe_runs_resumes_and_skips() {
     changed.extend(["--set", "eval.trials=4"]);
     let text = ok(&changed);
     assert!(text.contains("train:SM+Ours: up to date"), "{text}");
-    assert!(text.contains("run: eval:SM\n") && text.contains("run: report\n"), "{text}");
+    assert!(
+        text.contains("run: eval:SM\n") && text.contains("run: report\n"),
+        "{text}"
+    );
     assert!(text.contains("3 step(s) ran"), "{text}");
 }

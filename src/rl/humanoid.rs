@@ -644,8 +644,10 @@ impl<'a> HumanoidEnv<'a> {
         let n_objects = parts.objects.len();
         let he_dim = parts.he.as_ref().map_or(0, HeRuntime::dim);
         if let Some(h) = &parts.he {
+            // the feature pads missing objects with zeros (one-object clips
+            // beside the two-object clip of ParaHome share one encoder)
             ensure!(
-                h.enc.cfg.n_objects == n_objects,
+                h.enc.cfg.n_objects >= n_objects,
                 "the history encoder was trained with {} object(s); these worlds have {n_objects}",
                 h.enc.cfg.n_objects
             );

@@ -587,14 +587,23 @@ pub fn run(inputs: &[PathBuf], with_reference: bool, markdown_out: Option<&Path>
     if inputs.is_empty() {
         bail!("report: give at least one eval_summary.parquet or eval folder");
     }
-    let mut rows = Vec::new();
+    // rows of one label from several files (per-skill policies) merge
+    let mut rows: Vec<MethodRow> = Vec::new();
     for p in inputs {
         let f = if p.is_dir() {
             p.join("eval_summary.parquet")
         } else {
             p.clone()
         };
-        rows.extend(load(&f)?);
+        for r in load(&f)? {
+            match rows.iter_mut().find(|x| x.label == r.label) {
+                Some(x) => {
+                    x.cells.extend(r.cells);
+                    x.tsr.extend(r.tsr);
+                }
+                None => rows.push(r),
+            }
+        }
     }
     if with_reference {
         rows.extend(paper_table(&rows).iter().map(paper_row));

@@ -32,6 +32,9 @@ pub struct RunConfig {
     /// Methods to train and evaluate: "SM", "DM", with "+eNSI", "+STG",
     /// "+STF", "+ATS", "+HE", or "+Ours" (= STG+STF+ATS+HE; no STG on ParaHome).
     pub methods: Vec<String>,
+    /// Train one policy per listed skill (ParaHome: one per clip) instead of
+    /// one policy for every skill; empty = one policy.
+    pub policy_per_skill: Vec<String>,
 }
 
 const ORDER: [&str; 7] = [
@@ -50,6 +53,7 @@ impl Default for RunConfig {
             dataset: "ballplay".into(),
             stages: ORDER.iter().map(|s| s.to_string()).collect(),
             methods: vec!["SM".into()],
+            policy_per_skill: Vec::new(),
         }
     }
 }
@@ -59,11 +63,13 @@ pub fn parse_method(label: &str, parahome: bool) -> Result<super::train::Switche
     use crate::rl::humanoid::Method;
     let mut parts = label.split('+').map(str::trim);
     let mut sw = super::train::Switches::default();
-    sw.method = Some(match parts.next().unwrap_or("").to_ascii_uppercase().as_str() {
-        "SM" => Method::Sm,
-        "DM" => Method::Dm,
-        other => bail!("run.methods: `{label}`: `{other}` is not SM or DM"),
-    });
+    sw.method = Some(
+        match parts.next().unwrap_or("").to_ascii_uppercase().as_str() {
+            "SM" => Method::Sm,
+            "DM" => Method::Dm,
+            other => bail!("run.methods: `{label}`: `{other}` is not SM or DM"),
+        },
+    );
     for p in parts {
         match p.to_ascii_uppercase().as_str() {
             "ENSI" | "NSI" => sw.nsi = true,
@@ -112,7 +118,10 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
     let cfg: RunConfig = common.settings("run")?;
     for s in &cfg.stages {
         if !ORDER.contains(&s.as_str()) {
-            bail!("run.stages: unknown stage `{s}` (known: {})", ORDER.join(", "));
+            bail!(
+                "run.stages: unknown stage `{s}` (known: {})",
+                ORDER.join(", ")
+            );
         }
     }
     let parahome = cfg.dataset == "parahome";
@@ -154,17 +163,40 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
             .collect();
         format!("[{stage}]\n{t}\nset={sets:?}")
     };
-    // the chain of steps
-    let mut steps: Vec<(String, String, &str, Option<usize>)> = Vec::new(); // (key, settings, stage, method)
+    // the policies: (method index, skill of a per-skill policy)
+    let policies: Vec<(usize, Option<String>)> = (0..methods.len())
+        .flat_map(|i| {
+            if cfg.policy_per_skill.is_empty() {
+                vec![(i, None)]
+            } else {
+                cfg.policy_per_skill
+                    .iter()
+                    .map(|s| (i, Some(s.clone())))
+                    .collect()
+            }
+        })
+        .collect();
+    let policy_name = |p: &(usize, Option<String>)| match &p.1 {
+        Some(s) => format!("{}/{s}", methods[p.0].0),
+        None => methods[p.0].0.clone(),
+    };
+    // the chain of steps: (key, settings, stage, policy)
+    let mut steps: Vec<(String, String, &str, Option<usize>)> = Vec::new();
     for st in ORDER.iter().filter(|s| cfg.stages.iter().any(|x| x == *s)) {
         match *st {
             "train" | "eval" => {
-                for (i, (m, _)) in methods.iter().enumerate() {
+                for (i, p) in policies.iter().enumerate() {
                     let mut text = table_text(st);
                     if *st == "eval" {
                         text += &table_text("train");
                     }
-                    steps.push((format!("{st}:{m}"), text + &format!("\nmethod={m}"), st, Some(i)));
+                    let name = policy_name(p);
+                    steps.push((
+                        format!("{st}:{name}"),
+                        text + &format!("\npolicy={name}"),
+                        st,
+                        Some(i),
+                    ));
                 }
             }
             "report" => steps.push(("report".into(), cfg.methods.join(","), st, None)),
@@ -201,15 +233,22 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
         if !quiet {
             println!("run: {key}{}", if resume { " (resuming)" } else { "" });
         }
+        let policy = mi.map(|i| &policies[i]);
         let method_dir = |kind: &str| -> PathBuf {
-            let (m, _) = &methods[mi.expect("method step")];
-            out.join(kind).join(m)
+            out.join(kind)
+                .join(policy_name(policy.expect("a policy step")))
+        };
+        let skill_set = |a: &mut StageArgs| {
+            if let Some((_, Some(skill))) = policy {
+                a.set.push(format!("train.skills=[\"{skill}\"]"));
+            }
         };
         match stage {
             "ingest" => super::ingest::run(&Common::new(stage_args(data.clone(), None))?, false)?,
-            "build-stg" => {
-                super::build_stg::run(&Common::new(stage_args(data.clone(), Some(data.clone())))?, false)?
-            }
+            "build-stg" => super::build_stg::run(
+                &Common::new(stage_args(data.clone(), Some(data.clone())))?,
+                false,
+            )?,
             "sample-stf" => {
                 super::sample_stf::run(&Common::new(stage_args(data.clone(), Some(data.clone())))?)?
             }
@@ -219,24 +258,27 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
             )?,
             "train" => {
                 let dir = method_dir("train");
-                let mut sw = methods[mi.unwrap()].1.clone();
+                let mut sw = methods[policy.unwrap().0].1.clone();
                 sw.resume = resume && dir.join("checkpoint/state.json").is_file();
                 if !sw.resume && dir.exists() {
                     std::fs::remove_dir_all(&dir)?;
                 }
-                super::train::run(&Common::new(stage_args(dir, Some(data.clone())))?, &sw)?
+                let mut a = stage_args(dir, Some(data.clone()));
+                skill_set(&mut a);
+                super::train::run(&Common::new(a)?, &sw)?
             }
             "eval" => {
-                let policy = method_dir("train");
+                let trained = method_dir("train");
                 let dir = method_dir("eval");
                 let mut a = stage_args(dir, Some(data.clone()));
-                a.set.push(format!("eval.label={}", methods[mi.unwrap()].0));
-                super::eval::run(&Common::new(a)?, &policy)?
+                a.set
+                    .push(format!("eval.label={}", methods[policy.unwrap().0].0));
+                super::eval::run(&Common::new(a)?, &trained)?
             }
             "report" => {
-                let inputs: Vec<PathBuf> = methods
+                let inputs: Vec<PathBuf> = policies
                     .iter()
-                    .map(|(m, _)| out.join("eval").join(m))
+                    .map(|p| out.join("eval").join(policy_name(p)))
                     .filter(|d| d.join("eval_summary.parquet").is_file())
                     .collect();
                 super::report::run(&inputs, true, Some(&out.join("report.md")))?
