@@ -62,14 +62,15 @@ impl Default for RunConfig {
 pub fn parse_method(label: &str, parahome: bool) -> Result<super::train::Switches> {
     use crate::rl::humanoid::Method;
     let mut parts = label.split('+').map(str::trim);
-    let mut sw = super::train::Switches::default();
-    sw.method = Some(
-        match parts.next().unwrap_or("").to_ascii_uppercase().as_str() {
-            "SM" => Method::Sm,
-            "DM" => Method::Dm,
-            other => bail!("run.methods: `{label}`: `{other}` is not SM or DM"),
-        },
-    );
+    let method = match parts.next().unwrap_or("").to_ascii_uppercase().as_str() {
+        "SM" => Method::Sm,
+        "DM" => Method::Dm,
+        other => bail!("run.methods: `{label}`: `{other}` is not SM or DM"),
+    };
+    let mut sw = super::train::Switches {
+        method: Some(method),
+        ..Default::default()
+    };
     for p in parts {
         match p.to_ascii_uppercase().as_str() {
             "ENSI" | "NSI" => sw.nsi = true,
@@ -296,4 +297,22 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn method_labels_parse_into_switches() {
+        let s = parse_method("SM+Ours", false).unwrap();
+        assert!(s.stg && s.stf && s.ats && s.he && !s.nsi);
+        let p = parse_method("SM+Ours", true).unwrap();
+        assert!(!p.stg && p.stf && p.ats && p.he);
+        let d = parse_method("DM+eNSI", false).unwrap();
+        assert_eq!(d.method, Some(crate::rl::humanoid::Method::Dm));
+        assert!(d.nsi && !d.stf);
+        assert!(parse_method("XM", false).is_err());
+        assert!(parse_method("SM+Magic", false).is_err());
+    }
 }
