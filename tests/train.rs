@@ -315,7 +315,7 @@ fn episodes_end_by_falls_below_the_threshold_and_by_their_length() {
     let mut lengths = vec![0usize; n];
     let (mut falls, mut timeouts) = (0, 0);
     for _ in 0..150 {
-        let r = env.step(&zeros, &mut rng);
+        let r = env.step(&zeros, &mut rng).unwrap();
         for e in 0..n {
             lengths[e] += 1;
             assert!(

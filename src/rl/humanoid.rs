@@ -933,13 +933,8 @@ impl VecEnv for HumanoidEnv<'_> {
         self.obs.clone()
     }
 
-    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> StepResult {
-        match self.try_step(actions, rng) {
-            Ok(r) => r,
-            // a world that cannot be rebuilt or an encoder failure is a bug,
-            // not a training outcome
-            Err(e) => panic!("humanoid environment: {e:#}"),
-        }
+    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> Result<StepResult> {
+        self.try_step(actions, rng)
     }
 }
 

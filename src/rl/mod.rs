@@ -53,7 +53,9 @@ pub trait VecEnv {
     /// The current observations, `N * obs_dim`.
     fn observe(&self) -> Vec<f32>;
     /// Apply `N * act_dim` actions; `rng` drives any randomness (resets).
-    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> StepResult;
+    /// An error is a failure of the environment itself (a world that
+    /// cannot be rebuilt), not an episode outcome.
+    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> Result<StepResult>;
 }
 
 /// Running per-environment episode returns and the returns of finished
@@ -127,7 +129,7 @@ pub fn collect<E: VecEnv + ?Sized>(
     let mut obs = env.observe();
     for _ in 0..steps {
         let out = agent.act(&obs, false, rng)?;
-        let s = env.step(&out.actions, rng);
+        let s = env.step(&out.actions, rng)?;
         ensure!(
             s.rewards.len() == n && s.final_obs.len() == n * od,
             "collect: environment step sizes"
@@ -179,7 +181,7 @@ pub fn evaluate<E: VecEnv + ?Sized>(
     while done.iter().any(|&d| d < episodes) {
         let obs = env.observe();
         let a = agent.act(&obs, true, rng)?;
-        let s = env.step(&a.actions, rng);
+        let s = env.step(&a.actions, rng)?;
         for e in 0..n {
             running[e] += s.rewards[e] as f64;
             if s.terminated[e] || s.truncated[e] {

@@ -88,7 +88,7 @@ impl VecEnv for PointMass {
         o
     }
 
-    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> StepResult {
+    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> anyhow::Result<StepResult> {
         let n = self.num_envs();
         let mut s = StepResult {
             rewards: vec![0.0; n],
@@ -114,6 +114,6 @@ impl VecEnv for PointMass {
                 self.reset(e, rng);
             }
         }
-        s
+        Ok(s)
     }
 }

@@ -492,7 +492,7 @@ impl<E: VecEnv> VecEnv for Timed<'_, E> {
     fn observe(&self) -> Vec<f32> {
         self.env.observe()
     }
-    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> StepResult {
+    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> Result<StepResult> {
         let t = Instant::now();
         let r = self.env.step(actions, rng);
         self.secs += t.elapsed().as_secs_f64();
