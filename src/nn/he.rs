@@ -172,7 +172,8 @@ pub fn window(feats: &[Option<Vec<f32>>], t: usize, k: usize, c: usize) -> Vec<f
     w
 }
 
-/// Encoder theta.
+/// Encoder theta (cloning shares the weights).
+#[derive(Clone)]
 pub struct HistoryEncoder {
     convs: Vec<Conv1d>,
     fc: Linear,

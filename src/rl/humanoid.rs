@@ -221,6 +221,7 @@ pub fn write_observation(
 
 /// The frozen history encoder and the standardised features of every
 /// reference frame (for the history at a reset).
+#[derive(Clone)]
 pub struct HeRuntime {
     enc: HistoryEncoder,
     feats: Vec<Vec<Option<Vec<f32>>>>,

@@ -18,8 +18,9 @@
 //! `eval_summary.parquet` (one row per cell with 95 % Wilson intervals),
 //! and a printed table.
 
-use super::train::{environment_with, setup_with, PolicyMeta, TrainConfig};
+use super::train::{environment_with, setup_lib, start_params, PolicyMeta, Setup, TrainConfig};
 use super::Common;
+use crate::augment::stf::StfParams;
 use crate::eval::rules::{Judge, Rule};
 use crate::motion::MotionLib;
 use crate::reward::DatasetKind;
@@ -127,109 +128,110 @@ pub fn wilson(k: usize, n: usize) -> (f64, f64) {
     ((c - h).clamp(0.0, p), (c + h).clamp(p, 1.0))
 }
 
-/// One evaluation cell.
+/// One evaluation cell: its metric, start and target skills, rule (None:
+/// NR, the mean SM reward per unmasked step) and environment settings.
 struct Cell {
     metric: &'static str,
     from: String,
     to: String,
+    rule: Option<Rule>,
+    env: EnvConfig,
 }
 
-/// Run the cells of one kind: `trials` episodes of the environment built
-/// with `env_cfg` from the clips of `from`, judged by `rule` (None: NR,
-/// mean SM reward per unmasked step).
-#[allow(clippy::too_many_arguments)]
-fn run_cell(
-    common: &Common,
-    meta: &PolicyMeta,
-    agent: &Agent,
-    he: Option<&Path>,
-    cell: &Cell,
-    rule: Option<Rule>,
-    env_cfg: EnvConfig,
-    cfg: &EvalConfig,
-    seed: u64,
-) -> Result<Vec<etable::TrialRow>> {
-    let mut tcfg = meta.train.clone();
-    tcfg.skills = vec![cell.from.clone()];
-    tcfg.stg = false;
-    let noised = cell.metric == "nsr" && !env_cfg.object_perturb;
-    tcfg.nsi = noised;
-    tcfg.stf = false;
-    tcfg.p_n = 1.0;
-    tcfg.episode_length = 100_000; // follow the reference to its end
-    let s = setup_with(common, &tcfg, &meta.stf)?;
-    let he_rt = match he {
-        Some(dir) => {
-            let dev = candle_core::Device::Cpu;
-            Some(HeRuntime::new(
-                crate::nn::he::load(dir, &dev)?,
-                &s.lib,
-                &dev,
-            )?)
-        }
-        None => None,
-    };
-    let n = cfg.envs.min(cfg.trials).max(1);
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut env_cfg = env_cfg;
-    env_cfg.nsi_follow = noised;
-    let mut env = environment_with(&s, env_cfg.clone(), he_rt, n, &mut rng)?;
-    ensure!(
-        env.obs_dim() == agent.obs_dim(),
-        "the policy takes {} observation values; this environment gives {}",
-        agent.obs_dim(),
-        env.obs_dim()
-    );
-    let mut rows = Vec::with_capacity(cfg.trials);
-    let mut judges: Vec<Option<Judge>> = (0..n).map(|_| rule.map(Judge::new)).collect();
-    let mut sums = vec![(0.0f64, 0usize, 0usize); n];
-    // each environment runs trials in turn until `trials` are done
-    let mut started = 0usize;
-    let mut active = vec![true; n];
-    started += n;
-    while active.iter().any(|a| *a) {
-        let obs = env.observe();
-        let act = agent.act(&obs, true, &mut rng)?;
-        let r = env.try_step(&act.actions, &mut rng)?;
-        for e in 0..n {
-            if !active[e] {
-                continue;
-            }
-            if let Some(j) = judges[e].as_mut() {
-                j.update(&env.probes()[e]);
-            }
-            sums[e].2 += 1;
-            if let Some(sm) = env.sm_rewards()[e] {
-                sums[e].0 += sm;
-                sums[e].1 += 1;
-            }
-            if r.terminated[e] || r.truncated[e] {
-                let p = &env.probes()[e];
-                rows.push(etable::TrialRow {
-                    metric: cell.metric.to_string(),
-                    from: cell.from.clone(),
-                    to: cell.to.clone(),
-                    trial: rows.len() as u32,
-                    success: judges[e].as_ref().map(Judge::success),
-                    steps: sums[e].2 as u32,
-                    mean_sm: if sums[e].1 > 0 {
-                        sums[e].0 / sums[e].1 as f64
+/// What every cell of one evaluation shares.
+struct Evaluator<'a> {
+    setup: Setup,
+    base_stf: StfParams,
+    train: &'a TrainConfig,
+    agent: &'a Agent,
+    he: Option<HeRuntime>,
+    cfg: &'a EvalConfig,
+}
+
+impl Evaluator<'_> {
+    /// `trials` episodes of the environment of `cell`, started in the clips
+    /// of `cell.from`.
+    fn run_cell(&self, cell: &Cell, seed: u64) -> Result<Vec<etable::TrialRow>> {
+        let s = &self.setup;
+        let clips: Vec<usize> = s
+            .clips
+            .iter()
+            .copied()
+            .filter(|c| s.lib.clips[*c].skill == cell.from)
+            .collect();
+        let mut tcfg = self.train.clone();
+        tcfg.stg = false;
+        tcfg.stf = false;
+        tcfg.nsi = cell.env.nsi_follow;
+        tcfg.p_n = 1.0;
+        tcfg.episode_length = 100_000; // follow the reference to its end
+        let stf = start_params(&tcfg, &self.base_stf);
+        let (cfg, n) = (self.cfg, self.cfg.envs.min(self.cfg.trials).max(1));
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut env = environment_with(
+            s,
+            &clips,
+            stf,
+            cell.env.clone(),
+            self.he.clone(),
+            n,
+            &mut rng,
+        )?;
+        ensure!(
+            env.obs_dim() == self.agent.obs_dim(),
+            "the policy takes {} observation values; this environment gives {}",
+            self.agent.obs_dim(),
+            env.obs_dim()
+        );
+        let mut rows = Vec::with_capacity(cfg.trials);
+        let mut judges: Vec<Option<Judge>> = (0..n).map(|_| cell.rule.map(Judge::new)).collect();
+        let mut sums = vec![(0.0f64, 0usize, 0usize); n];
+        // each environment runs trials in turn until `trials` have started
+        let mut started = n;
+        let mut active = vec![true; n];
+        while active.iter().any(|a| *a) {
+            let obs = env.observe();
+            let act = self.agent.act(&obs, true, &mut rng)?;
+            let r = env.step(&act.actions, &mut rng)?;
+            for e in 0..n {
+                if !active[e] {
+                    continue;
+                }
+                if let Some(j) = judges[e].as_mut() {
+                    j.update(&env.probes()[e]);
+                }
+                sums[e].2 += 1;
+                if let Some(sm) = env.sm_rewards()[e] {
+                    sums[e].0 += sm;
+                    sums[e].1 += 1;
+                }
+                if r.terminated[e] || r.truncated[e] {
+                    rows.push(etable::TrialRow {
+                        metric: cell.metric.to_string(),
+                        from: cell.from.clone(),
+                        to: cell.to.clone(),
+                        trial: rows.len() as u32,
+                        success: judges[e].as_ref().map(Judge::success),
+                        steps: sums[e].2 as u32,
+                        mean_sm: if sums[e].1 > 0 {
+                            sums[e].0 / sums[e].1 as f64
+                        } else {
+                            f64::NAN
+                        },
+                        final_root_z: env.probes()[e].root[2],
+                    });
+                    sums[e] = (0.0, 0, 0);
+                    judges[e] = cell.rule.map(Judge::new);
+                    if started < cfg.trials {
+                        started += 1;
                     } else {
-                        f64::NAN
-                    },
-                    final_root_z: p.root[2],
-                });
-                sums[e] = (0.0, 0, 0);
-                judges[e] = rule.map(Judge::new);
-                if started < cfg.trials {
-                    started += 1;
-                } else {
-                    active[e] = false;
+                        active[e] = false;
+                    }
                 }
             }
         }
+        Ok(rows)
     }
-    Ok(rows)
 }
 
 /// Run the stage. `policy` is a `skillaug train` output folder.
@@ -311,87 +313,44 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
             .find(|c| c.skill == skill)
             .map_or(0, |c| c.class as u32)
     };
-    let want = |m: &str| cfg.metrics.iter().any(|x| x == m);
-    let mut rows = Vec::new();
-    let mut k = 0u64;
-    let mut next_seed = || {
-        k += 1;
-        common.args.seed.wrapping_mul(1_000_003).wrapping_add(k)
+    let steps = |r: Rule| {
+        if cfg.steps > 0 {
+            cfg.steps
+        } else {
+            r.trial_steps()
+        }
     };
-    let he = he_dir.as_deref();
+    let want = |m: &str| cfg.metrics.iter().any(|x| x == m);
+    let cell = |metric, from: &str, to: &str, rule: Option<Rule>, env: EnvConfig| Cell {
+        metric,
+        from: from.to_string(),
+        to: to.to_string(),
+        rule,
+        env,
+    };
+    let mut cells = Vec::new();
     for skill in &meta.skills {
         let rule = Rule::of_skill(skill, shot_target(&lib, skill));
-        let steps = |r: Rule| {
-            if cfg.steps > 0 {
-                cfg.steps
-            } else {
-                r.trial_steps()
-            }
-        };
         if let Some(r) = rule {
+            let trial = EnvConfig {
+                fixed_length: Some(steps(r)),
+                ..base.clone()
+            };
             if want("sr") {
-                let cell = Cell {
-                    metric: "sr",
-                    from: skill.clone(),
-                    to: skill.clone(),
-                };
-                let ec = EnvConfig {
-                    fixed_length: Some(steps(r)),
-                    ..base.clone()
-                };
-                rows.extend(run_cell(
-                    common,
-                    &meta,
-                    &agent,
-                    he,
-                    &cell,
-                    Some(r),
-                    ec,
-                    &cfg,
-                    next_seed(),
-                )?);
+                cells.push(cell("sr", skill, skill, rule, trial.clone()));
             }
             if want("nsr") {
-                let cell = Cell {
-                    metric: "nsr",
-                    from: skill.clone(),
-                    to: skill.clone(),
+                let parahome = kind == DatasetKind::ParaHome;
+                let env = EnvConfig {
+                    object_perturb: parahome,
+                    nsi_follow: !parahome,
+                    ..trial
                 };
-                let ec = EnvConfig {
-                    fixed_length: Some(steps(r)),
-                    object_perturb: kind == DatasetKind::ParaHome,
-                    ..base.clone()
-                };
-                rows.extend(run_cell(
-                    common,
-                    &meta,
-                    &agent,
-                    he,
-                    &cell,
-                    Some(r),
-                    ec,
-                    &cfg,
-                    next_seed(),
-                )?);
+                cells.push(cell("nsr", skill, skill, rule, env));
             }
         }
         if want("nr") {
-            let cell = Cell {
-                metric: "nr",
-                from: skill.clone(),
-                to: skill.clone(),
-            };
-            rows.extend(run_cell(
-                common,
-                &meta,
-                &agent,
-                he,
-                &cell,
-                None,
-                base.clone(),
-                &cfg,
-                next_seed(),
-            )?);
+            cells.push(cell("nr", skill, skill, None, base.clone()));
         }
     }
     if want("tsr") {
@@ -399,36 +358,47 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
             let Some(r) = Rule::of_skill(&b, shot_target(&lib, &b)) else {
                 continue;
             };
-            let cell = Cell {
-                metric: "tsr",
-                from: a.clone(),
-                to: b.clone(),
-            };
-            let ec = EnvConfig {
-                fixed_length: Some(if cfg.steps > 0 {
-                    cfg.steps
-                } else {
-                    r.trial_steps()
-                }),
+            let env = EnvConfig {
+                fixed_length: Some(steps(r)),
                 condition: Some(class_of(&b)),
                 ..base.clone()
             };
-            rows.extend(run_cell(
-                common,
-                &meta,
-                &agent,
-                he,
-                &cell,
-                Some(r),
-                ec,
-                &cfg,
-                next_seed(),
-            )?);
+            cells.push(cell("tsr", &a, &b, Some(r), env));
         }
+    }
+    let dataset = lib.clips[0].dataset.clone();
+    let mut tcfg = meta.train.clone();
+    tcfg.skills = meta.skills.clone();
+    tcfg.stg = false;
+    let setup = setup_lib(lib, common, &tcfg, &meta.stf)?;
+    let he = match he_dir {
+        Some(dir) => {
+            let dev = candle_core::Device::Cpu;
+            let enc = crate::nn::he::load(&dir, &dev)?;
+            Some(HeRuntime::new(enc, &setup.lib, &dev)?)
+        }
+        None => None,
+    };
+    let ev = Evaluator {
+        base_stf: meta.stf.params()?.0,
+        setup,
+        train: &meta.train,
+        agent: &agent,
+        he,
+        cfg: &cfg,
+    };
+    let mut rows = Vec::new();
+    for (k, c) in cells.iter().enumerate() {
+        let seed = common
+            .args
+            .seed
+            .wrapping_mul(1_000_003)
+            .wrapping_add(k as u64 + 1);
+        rows.extend(ev.run_cell(c, seed)?);
     }
     let summary = etable::summarise(&label, &rows)?;
     let resolved = common.resolved_toml("eval", &cfg)?;
-    let tmeta = table::Meta::new(dataset, &resolved)
+    let tmeta = table::Meta::new(&dataset, &resolved)
         .with("label", label.clone())
         .with("policy", policy.display().to_string());
     let mut out = super::Outputs::new(&common.args.out)?;

@@ -28,7 +28,7 @@
 
 use super::Common;
 use crate::augment::ats::{Ats, AtsParams, Update};
-use crate::augment::stf::StfSampler;
+use crate::augment::stf::{StfParams, StfSampler};
 use crate::motion::MotionLib;
 use crate::reward::{ContactRule, DatasetKind, RewardOptions, Weights};
 use crate::rl::humanoid::{
@@ -343,11 +343,40 @@ pub fn setup(common: &Common, cfg: &TrainConfig) -> Result<Setup> {
     setup_with(common, cfg, &stf_cfg)
 }
 
-/// [`setup`] with explicit STF settings (evaluation uses the policy's).
+/// [`setup`] with explicit STF settings.
 pub fn setup_with(common: &Common, cfg: &TrainConfig, stf_cfg: &StfConfig) -> Result<Setup> {
-    let (mut stf, ats_params) = stf_cfg.params()?;
+    setup_lib(
+        table::load_library(common.input_dir())?,
+        common,
+        cfg,
+        stf_cfg,
+    )
+}
+
+/// The STF parameters of `cfg`'s switches over the recipe's `base`.
+pub fn start_params(cfg: &TrainConfig, base: &StfParams) -> StfParams {
+    let mut stf = base.clone();
+    stf.p_e = if cfg.stg { cfg.p_e } else { 0.0 };
+    stf.p_n = if cfg.nsi || cfg.stf { cfg.p_n } else { 0.0 };
+    stf.horizon = cfg.episode_length;
+    if cfg.nsi && !cfg.stf {
+        // ε-NSI follows the centroid's clip: no connection, so no start is
+        // given up for lack of one (τ only decides STF connections)
+        stf.tau = 0.0;
+    }
+    stf
+}
+
+/// [`setup_with`] on a library already loaded from `common`'s input folder
+/// (evaluation checks it against the policy first).
+pub fn setup_lib(
+    lib: MotionLib,
+    common: &Common,
+    cfg: &TrainConfig,
+    stf_cfg: &StfConfig,
+) -> Result<Setup> {
+    let (base, ats_params) = stf_cfg.params()?;
     let input = common.input_dir();
-    let lib = table::load_library(input)?;
     let all = lib.skills();
     for s in &cfg.skills {
         if !all.contains(s) {
@@ -361,14 +390,7 @@ pub fn setup_with(common: &Common, cfg: &TrainConfig, stf_cfg: &StfConfig) -> Re
     let clips: Vec<usize> = (0..lib.clips.len())
         .filter(|c| cfg.skills.is_empty() || cfg.skills.contains(&lib.clips[*c].skill))
         .collect();
-    stf.p_e = if cfg.stg { cfg.p_e } else { 0.0 };
-    stf.p_n = if cfg.nsi || cfg.stf { cfg.p_n } else { 0.0 };
-    stf.horizon = cfg.episode_length;
-    if cfg.nsi && !cfg.stf {
-        // ε-NSI follows the centroid's clip: no connection, so no start is
-        // given up for lack of one (τ only decides STF connections)
-        stf.tau = 0.0;
-    }
+    let stf = start_params(cfg, &base);
     if cfg.stg && DatasetKind::of_library(&lib) == DatasetKind::ParaHome {
         bail!("train --stg: ParaHome has no Stitched Trajectory Graph (Table 7); leave --stg off");
     }
@@ -431,13 +453,15 @@ pub fn environment<'a>(
         ats_update: cfg.ats_update,
         ..EnvConfig::training(cfg.method)
     };
-    environment_with(s, env_cfg, he, n, rng)
+    environment_with(s, &s.clips, s.stf.clone(), env_cfg, he, n, rng)
 }
 
-/// Build the environment of `setup` with `n` worlds and explicit settings
-/// (evaluation).
+/// Build an environment of `n` worlds over `setup`'s library that starts
+/// in `clips` with `stf`, with explicit settings (evaluation).
 pub fn environment_with<'a>(
     s: &'a Setup,
+    clips: &[usize],
+    stf: StfParams,
     env_cfg: EnvConfig,
     he: Option<HeRuntime>,
     n: usize,
@@ -445,20 +469,20 @@ pub fn environment_with<'a>(
 ) -> Result<HumanoidEnv<'a>> {
     let mut ats = Ats::new(&s.lib);
     for c in 0..s.lib.clips.len() {
-        if !s.clips.contains(&c) {
+        if !clips.contains(&c) {
             ats.disable_clip(c);
         }
     }
     let weights = Weights::sm(DatasetKind::of_library(&s.lib));
     let mut sampler = StfSampler::new(&s.lib, &s.edges, weights);
-    if s.fk && s.stf.p_n > 0.0 {
+    if s.fk && stf.p_n > 0.0 {
         sampler = sampler.with_model(s.model.clone());
     }
     HumanoidEnv::new(
         EnvParts {
             lib: &s.lib,
             sampler,
-            stf: s.stf.clone(),
+            stf,
             ats,
             model: s.model.clone(),
             objects: s.objects.clone(),
