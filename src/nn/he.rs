@@ -110,6 +110,15 @@ pub fn layout_text(sk: Skeleton, n_objects: usize) -> String {
     )
 }
 
+/// The feature of `s` standardised with `cfg`'s per-channel mean and std.
+pub fn standardised_feature(s: &State, sk: Skeleton, cfg: &HeConfig) -> Vec<f32> {
+    feature(s, sk, cfg.n_objects)
+        .iter()
+        .zip(cfg.mean.iter().zip(&cfg.std))
+        .map(|(x, (m, sd))| (x - m) / sd)
+        .collect()
+}
+
 /// Standardised features of every frame of every clip (`None` = missing).
 pub fn clip_features(lib: &MotionLib, cfg: &HeConfig) -> Vec<Vec<Option<Vec<f32>>>> {
     let sk = lib.skeleton;
@@ -117,15 +126,7 @@ pub fn clip_features(lib: &MotionLib, cfg: &HeConfig) -> Vec<Vec<Option<Vec<f32>
         .iter()
         .map(|c| {
             (0..c.frames)
-                .map(|i| {
-                    c.state(i).map(|s| {
-                        feature(&s, sk, cfg.n_objects)
-                            .iter()
-                            .zip(cfg.mean.iter().zip(&cfg.std))
-                            .map(|(x, (m, sd))| (x - m) / sd)
-                            .collect()
-                    })
-                })
+                .map(|i| c.state(i).map(|s| standardised_feature(&s, sk, cfg)))
                 .collect()
         })
         .collect()

@@ -113,6 +113,20 @@ impl Weights {
         }
     }
 
+    /// These weights without the object and contact terms: the reward of
+    /// classes 0 and 10 (no object; reference §4.2/§4.4: the body factor only).
+    pub fn without_object(self) -> Weights {
+        Weights {
+            op: 0.0,
+            or: 0.0,
+            opv: 0.0,
+            orv: 0.0,
+            rel: 0.0,
+            cg: [0.0; 3],
+            ..self
+        }
+    }
+
     /// DM weights, paper Table 9 (ParaHome uses the BallPlay row, as the
     /// reference code's DM ParaHome configs do, §4.4).
     pub fn dm(kind: DatasetKind) -> Weights {

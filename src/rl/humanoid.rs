@@ -261,12 +261,7 @@ impl HeRuntime {
 
     /// The standardised feature of a simulated state.
     fn feature(&self, s: &State, sk: Skeleton) -> Vec<f32> {
-        let cfg = &self.enc.cfg;
-        he::feature(s, sk, cfg.n_objects)
-            .iter()
-            .zip(cfg.mean.iter().zip(&cfg.std))
-            .map(|(x, (m, sd))| (x - m) / sd)
-            .collect()
+        he::standardised_feature(s, sk, &self.enc.cfg)
     }
 
     /// The history before frame `frame` of clip `clip`.
@@ -423,18 +418,6 @@ fn no_object_class(class: u32) -> bool {
     class == 0 || class == 10
 }
 
-fn body_only(w: Weights) -> Weights {
-    Weights {
-        op: 0.0,
-        or: 0.0,
-        opv: 0.0,
-        orv: 0.0,
-        rel: 0.0,
-        cg: [0.0; 3],
-        ..w
-    }
-}
-
 /// A started episode: its world, its state and its first observation.
 type Started = (World, Episode, Vec<f32>);
 
@@ -446,7 +429,7 @@ impl Ctx<'_> {
             Method::Dm => Weights::dm(self.kind),
         };
         if no_object_class(class) {
-            (body_only(train), body_only(sm))
+            (train.without_object(), sm.without_object())
         } else {
             (train, sm)
         }
@@ -455,8 +438,7 @@ impl Ctx<'_> {
     /// A fresh world in the trajectory's start state, its episode and its
     /// first observation (without the embedding). The history holds the
     /// reference frames before the start; the start's own feature is
-    /// returned in the episode's `pending` slot for the caller to push after
-    /// the embedding.
+    /// returned beside them for the caller to push after the embedding.
     fn start(
         &self,
         traj: Trajectory,
@@ -935,13 +917,6 @@ impl VecEnv for HumanoidEnv<'_> {
     }
 
     fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> Result<StepResult> {
-        self.try_step(actions, rng)
-    }
-}
-
-impl HumanoidEnv<'_> {
-    /// [`VecEnv::step`] with its errors.
-    pub fn try_step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> Result<StepResult> {
         let (n, od, ad) = (self.worlds.len(), self.ctx.obs_dim, self.ctx.act_dim);
         if actions.len() != n * ad {
             bail!(
@@ -951,7 +926,7 @@ impl HumanoidEnv<'_> {
         }
         let ctx = &self.ctx;
         let he = self.he.as_ref();
-        let outs: Vec<Outcome> = self
+        let mut outs: Vec<Outcome> = self
             .worlds
             .par_iter_mut()
             .zip(self.eps.par_iter_mut())
@@ -960,14 +935,17 @@ impl HumanoidEnv<'_> {
             .map(|(((w, ep), out), a)| ctx.advance(w, ep, a, he, out))
             .collect();
         let feats: Vec<(usize, Vec<f32>)> = outs
-            .iter()
+            .iter_mut()
             .enumerate()
-            .map(|(e, o)| (e, o.feature.clone()))
+            .map(|(e, o)| (e, std::mem::take(&mut o.feature)))
             .collect();
         self.embed_and_push(&feats)?;
         let rewards = self.score(&outs);
         self.sm = outs.iter().map(|o| o.sm).collect();
-        self.probes = outs.iter().map(|o| o.probe.clone()).collect();
+        self.probes = outs
+            .iter_mut()
+            .map(|o| std::mem::take(&mut o.probe))
+            .collect();
         let mut res = StepResult {
             rewards,
             terminated: vec![false; n],
