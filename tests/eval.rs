@@ -6,24 +6,9 @@ mod common;
 use common::*;
 
 fn tiny_train(from: &str, out: &str, extra: &[&str]) {
-    let mut a = vec![
-        "train",
-        "--from",
-        from,
-        "--out",
-        out,
-        "-q",
-        "--set",
-        "train.num_envs=4",
-        "--set",
-        "train.horizon=8",
-        "--set",
-        "train.ppo.hidden=[16]",
-        "--set",
-        "train.ppo.minibatch=16",
-        "--set",
-        "train.samples=32",
-    ];
+    let mut a = vec!["train", "--from", from, "--out", out, "-q"];
+    a.extend_from_slice(TINY_TRAIN);
+    a.extend_from_slice(&["--set", "train.samples=32"]);
     a.extend_from_slice(extra);
     ok(&a);
 }

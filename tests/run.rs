@@ -20,25 +20,12 @@ fn the_smoke_recipe_runs_resumes_and_skips() {
     let o = out.to_str().unwrap();
     let args = ["run", "stages/smoke.toml", "--out", o, "--threads", "2"];
     // start, and kill it while the first policy trains
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_skillaug"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env_remove("SKILLAUG_DATA")
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let t = std::time::Instant::now();
-    while !lock_has_started(&out, "train:SM") {
-        assert!(
-            child.try_wait().unwrap().is_none(),
-            "the run ended before it could be killed"
-        );
-        assert!(t.elapsed().as_secs() < 300, "training never started");
-        std::thread::sleep(std::time::Duration::from_millis(5));
-    }
-    child.kill().unwrap();
-    child.wait().unwrap();
+    kill_when(
+        &args,
+        || lock_has_started(&out, "train:SM"),
+        300,
+        "training never started",
+    );
 
     let text = ok(&args);
     for done in [

@@ -15,16 +15,8 @@ use skillaug::stage::train::{environment, setup, TrainConfig};
 use skillaug::stage::Common;
 use std::path::{Path, PathBuf};
 
-/// Four environments, eight steps per iteration, a 16-unit network.
+/// With [`TINY_TRAIN`]: two mini-epochs, a checkpoint every iteration, two threads.
 const TINY: &[&str] = &[
-    "--set",
-    "train.num_envs=4",
-    "--set",
-    "train.horizon=8",
-    "--set",
-    "train.ppo.hidden=[16]",
-    "--set",
-    "train.ppo.minibatch=16",
     "--set",
     "train.ppo.epochs=2",
     "--set",
@@ -36,6 +28,7 @@ const TINY: &[&str] = &[
 
 fn train_args<'a>(from: &'a str, out: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
     let mut v = vec!["train", "--from", from, "--out", out];
+    v.extend_from_slice(TINY_TRAIN);
     v.extend_from_slice(TINY);
     v.extend_from_slice(extra);
     v
@@ -103,28 +96,12 @@ fn a_run_killed_with_sigkill_and_resumed_matches_the_uninterrupted_run() {
 
     let b = dir.path().join("b");
     let args = train_args(from, b.to_str().unwrap(), &extra);
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_skillaug"))
-        .args(&args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env_remove("SKILLAUG_DATA")
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let t = std::time::Instant::now();
-    loop {
-        if checkpoint_iteration(&b).is_some_and(|i| i >= 3) {
-            break;
-        }
-        assert!(
-            child.try_wait().unwrap().is_none(),
-            "the run ended before it could be killed"
-        );
-        assert!(t.elapsed().as_secs() < 120, "no checkpoint after 120 s");
-        std::thread::sleep(std::time::Duration::from_millis(5));
-    }
-    child.kill().unwrap(); // SIGKILL
-    child.wait().unwrap();
+    kill_when(
+        &args,
+        || checkpoint_iteration(&b).is_some_and(|i| i >= 3),
+        120,
+        "no checkpoint",
+    );
     let killed_at = checkpoint_iteration(&b).unwrap();
     assert!(killed_at < 60, "killed after the last iteration");
     assert!(!b.join("policy.safetensors").exists());

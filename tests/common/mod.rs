@@ -21,6 +21,44 @@ pub fn skillaug(args: &[&str]) -> Output {
         .expect("run skillaug")
 }
 
+/// Start the real binary with `args`, wait until `ready()` holds, then
+/// kill it with SIGKILL. Fails if the process ends first or `ready` takes
+/// longer than `limit_s` seconds (`what` names the awaited state).
+pub fn kill_when(args: &[&str], ready: impl Fn() -> bool, limit_s: u64, what: &str) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_skillaug"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env_remove("SKILLAUG_DATA")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("start skillaug");
+    let t = std::time::Instant::now();
+    while !ready() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before it could be killed"
+        );
+        assert!(t.elapsed().as_secs() < limit_s, "{what} after {limit_s} s");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+}
+
+/// `--set` flags of a tiny training run: 4 environments x 8 steps, one
+/// 16-unit hidden layer.
+pub const TINY_TRAIN: &[&str] = &[
+    "--set",
+    "train.num_envs=4",
+    "--set",
+    "train.horizon=8",
+    "--set",
+    "train.ppo.hidden=[16]",
+    "--set",
+    "train.ppo.minibatch=16",
+];
+
 /// Run and require success, returning stdout.
 pub fn ok(args: &[&str]) -> String {
     let o = skillaug(args);
