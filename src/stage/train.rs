@@ -337,19 +337,15 @@ pub struct Setup {
     pub fk: bool,
 }
 
-/// Load the library and everything else the environment needs.
+/// Load the library and everything else the environment needs, with the
+/// recipe's `[sample-stf]` settings.
 pub fn setup(common: &Common, cfg: &TrainConfig) -> Result<Setup> {
     let stf_cfg: StfConfig = common.settings("sample-stf")?;
-    setup_with(common, cfg, &stf_cfg)
-}
-
-/// [`setup`] with explicit STF settings.
-pub fn setup_with(common: &Common, cfg: &TrainConfig, stf_cfg: &StfConfig) -> Result<Setup> {
     setup_lib(
         table::load_library(common.input_dir())?,
         common,
         cfg,
-        stf_cfg,
+        &stf_cfg,
     )
 }
 
@@ -367,8 +363,9 @@ pub fn start_params(cfg: &TrainConfig, base: &StfParams) -> StfParams {
     stf
 }
 
-/// [`setup_with`] on a library already loaded from `common`'s input folder
-/// (evaluation checks it against the policy first).
+/// [`setup`] on a library already loaded from `common`'s input folder and
+/// explicit STF settings (evaluation checks the library against the policy
+/// first and uses the policy's STF settings).
 pub fn setup_lib(
     lib: MotionLib,
     common: &Common,
@@ -524,15 +521,13 @@ impl<E: VecEnv> VecEnv for Timed<'_, E> {
     }
 }
 
-fn settings_hash(cfg: &TrainConfig, common: &Common) -> Result<String> {
+fn settings_hash(cfg: &TrainConfig, stf_cfg: &StfConfig, seed: u64) -> Result<String> {
     let mut c = cfg.clone();
     c.samples = 0;
-    let stf_cfg: StfConfig = common.settings("sample-stf")?;
     let text = format!(
-        "{}\n{}\nseed={}",
+        "{}\n{}\nseed={seed}",
         toml::to_string(&c)?,
-        toml::to_string(&stf_cfg)?,
-        common.args.seed
+        toml::to_string(stf_cfg)?,
     );
     Ok(crate::config::hash_text(&text))
 }
@@ -652,7 +647,13 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
     cfg.he |= sw.he;
     cfg.validate()?;
     let dev = crate::nn::device(sw.device.as_deref().unwrap_or("cpu"))?;
-    let s = setup(common, &cfg)?;
+    let stf_cfg: StfConfig = common.settings("sample-stf")?;
+    let s = setup_lib(
+        table::load_library(common.input_dir())?,
+        common,
+        &cfg,
+        &stf_cfg,
+    )?;
     let he = if cfg.he {
         let dir = if cfg.he_dir.is_empty() {
             common.input_dir().to_path_buf()
@@ -668,7 +669,7 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
     std::fs::create_dir_all(&out)
         .with_context(|| format!("cannot create the output folder {}", out.display()))?;
     let resolved = common.resolved_toml("train", &cfg)?;
-    let hash = settings_hash(&cfg, common)?;
+    let hash = settings_hash(&cfg, &stf_cfg, common.args.seed)?;
     let seed = common.args.seed;
     let ppo = cfg.ppo_config();
     let n = cfg.envs();
@@ -893,7 +894,7 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
             }
         }),
         train: cfg.clone(),
-        stf: common.settings("sample-stf")?,
+        stf: stf_cfg,
         iterations: iteration,
         samples,
     };
