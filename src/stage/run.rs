@@ -187,14 +187,12 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
         match *st {
             "train" | "eval" => {
                 for (i, p) in policies.iter().enumerate() {
-                    let mut text = table_text(st);
-                    if *st == "eval" {
-                        text += &table_text("train");
-                    }
+                    // later steps chain the hashes of the earlier ones
+                    // (train's settings reach eval through `upstream`)
                     let name = policy_name(p);
                     steps.push((
                         format!("{st}:{name}"),
-                        text + &format!("\npolicy={name}"),
+                        table_text(st) + &format!("\npolicy={name}"),
                         st,
                         Some(i),
                     ));

@@ -337,6 +337,17 @@ pub struct Setup {
     pub fk: bool,
 }
 
+impl Setup {
+    /// The trained skills, each once, in the library's clip order.
+    pub fn skills(&self) -> Vec<String> {
+        self.lib
+            .skills()
+            .into_iter()
+            .filter(|sk| self.clips.iter().any(|c| self.lib.clips[*c].skill == *sk))
+            .collect()
+    }
+}
+
 /// Load the library and everything else the environment needs, with the
 /// recipe's `[sample-stf]` settings.
 pub fn setup(common: &Common, cfg: &TrainConfig) -> Result<Setup> {
@@ -725,15 +736,7 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
     }
     let quiet = common.args.quiet;
     if !quiet {
-        let skills: Vec<&str> = {
-            let mut v: Vec<&str> = s
-                .clips
-                .iter()
-                .map(|c| s.lib.clips[*c].skill.as_str())
-                .collect();
-            v.dedup();
-            v
-        };
+        let skills = s.skills();
         println!(
             "train: {:?} on {} ({} clips), {} envs x {} steps, obs {} act {}, nets {:?}, lr {}, switches nsi={} stg={} stf={} ats={} he={}{}",
             cfg.method,
@@ -869,15 +872,7 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
         format: 1,
         dataset: dataset.clone(),
         skeleton: s.lib.skeleton.name().to_string(),
-        skills: {
-            let mut v: Vec<String> = s
-                .clips
-                .iter()
-                .map(|c| s.lib.clips[*c].skill.clone())
-                .collect();
-            v.dedup();
-            v
-        },
+        skills: s.skills(),
         clips: s
             .clips
             .iter()
