@@ -109,20 +109,7 @@ fn eval_refuses_a_policy_of_another_dataset_or_without_its_encoder() {
     ]);
     assert!(e.contains("policy.meta.json"), "{e}");
     // a policy with an encoder whose files are gone
-    ok(&[
-        "pretrain-he",
-        "--out",
-        from,
-        "-q",
-        "--set",
-        "pretrain-he.steps=2",
-        "--set",
-        "pretrain-he.conv=[8, 8, 4]",
-        "--set",
-        "pretrain-he.predictor_hidden=[16]",
-        "--set",
-        "pretrain-he.batch_size=8",
-    ]);
+    tiny_encoder(from, 2);
     let hp = dir.path().join("he-pol");
     tiny_train(from, hp.to_str().unwrap(), &["--he"]);
     std::fs::remove_file(run.join("he.safetensors")).unwrap();

@@ -222,20 +222,7 @@ fn bad_inputs_are_refused_with_what_is_missing() {
 fn the_history_encoder_adds_three_observation_dimensions() {
     let (dir, run) = ingested("ballplay");
     let from = run.to_str().unwrap();
-    ok(&[
-        "pretrain-he",
-        "--out",
-        from,
-        "-q",
-        "--set",
-        "pretrain-he.steps=3",
-        "--set",
-        "pretrain-he.conv=[8, 8, 4]",
-        "--set",
-        "pretrain-he.predictor_hidden=[16]",
-        "--set",
-        "pretrain-he.batch_size=8",
-    ]);
+    tiny_encoder(from, 3);
     let out = dir.path().join("he");
     let mut args = train_args(
         from,

@@ -59,6 +59,26 @@ pub const TINY_TRAIN: &[&str] = &[
     "train.ppo.minibatch=16",
 ];
 
+/// Pre-train a tiny history encoder (8-8-4 convolutions, 16-unit
+/// predictor, batches of 8) for `steps` steps into run folder `out`.
+pub fn tiny_encoder(out: &str, steps: u32) {
+    let steps = format!("pretrain-he.steps={steps}");
+    ok(&[
+        "pretrain-he",
+        "--out",
+        out,
+        "-q",
+        "--set",
+        &steps,
+        "--set",
+        "pretrain-he.conv=[8, 8, 4]",
+        "--set",
+        "pretrain-he.predictor_hidden=[16]",
+        "--set",
+        "pretrain-he.batch_size=8",
+    ]);
+}
+
 /// Run and require success, returning stdout.
 pub fn ok(args: &[&str]) -> String {
     let o = skillaug(args);
