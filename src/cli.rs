@@ -39,6 +39,8 @@ pub enum Command {
     Report(ReportArgs),
     /// Plot training curves from train_metrics.parquet files as a PNG
     Plot(PlotArgs),
+    /// Write one HTML page that plays back clips, STF samples and recorded rollouts
+    View(ViewArgs),
     /// Run a benchmark and print its figures (ingest, sim, train)
     Bench(BenchArgs),
 }
@@ -141,6 +143,9 @@ pub struct EvalArgs {
     /// Output folder of `skillaug train` (policy.safetensors, policy.meta.json).
     #[arg(long, value_name = "DIR")]
     pub policy: PathBuf,
+    /// Keep the first N trials of each cell, step by step, in eval_rollouts.parquet (for `skillaug view`); overrides eval.record.
+    #[arg(long, value_name = "N")]
+    pub record: Option<usize>,
 }
 
 /// `skillaug run`.
@@ -192,6 +197,41 @@ pub struct PlotArgs {
     /// Chart title (default: the metric).
     #[arg(long)]
     pub title: Option<String>,
+}
+
+/// `skillaug view`.
+#[derive(Debug, Args)]
+pub struct ViewArgs {
+    /// Run folder with clips.parquet and frames.parquet.
+    #[arg(long, value_name = "DIR", default_value = "runs/default")]
+    pub from: PathBuf,
+    /// Folder holding the releases and assets (MJCF, object meshes).
+    #[arg(long, value_name = "DIR", env = "SKILLAUG_DATA")]
+    pub data_root: Option<PathBuf>,
+    /// A reference clip by name or id (repeatable).
+    #[arg(long, value_name = "NAME|ID")]
+    pub clip: Vec<String>,
+    /// Every clip of a skill (repeatable).
+    #[arg(long, value_name = "SKILL")]
+    pub skill: Vec<String>,
+    /// STF samples to show (stf_samples.parquet).
+    #[arg(long, value_name = "FILE")]
+    pub stf: Option<PathBuf>,
+    /// Trajectory ids of --stf (repeatable; default the first --max).
+    #[arg(long, value_name = "K")]
+    pub traj: Vec<u32>,
+    /// Rollouts recorded by `skillaug eval --record N` (the eval folder or its eval_rollouts.parquet).
+    #[arg(long, value_name = "FILE|DIR")]
+    pub rollouts: Option<PathBuf>,
+    /// Trials of --rollouts (repeatable; default the first --max of each cell).
+    #[arg(long, value_name = "K")]
+    pub trial: Vec<u32>,
+    /// Items of each kind chosen by default.
+    #[arg(long, default_value_t = 8)]
+    pub max: usize,
+    /// The page to write.
+    #[arg(long, value_name = "FILE", default_value = "view.html")]
+    pub out: PathBuf,
 }
 
 /// `skillaug train`.

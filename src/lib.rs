@@ -22,6 +22,7 @@ pub mod rl;
 pub mod sim;
 pub mod stage;
 pub mod table;
+pub mod view;
 
 use anyhow::Result;
 use cli::{Cli, Command};
@@ -55,7 +56,13 @@ pub fn run(cli: Cli) -> Result<()> {
             };
             stage::train::run(&stage::Common::new(a.common)?, &sw)
         }
-        Command::Eval(a) => stage::eval::run(&stage::Common::new(a.common)?, &a.policy),
+        Command::Eval(a) => {
+            let mut common = a.common;
+            if let Some(n) = a.record {
+                common.set.push(format!("eval.record={n}"));
+            }
+            stage::eval::run(&stage::Common::new(common)?, &a.policy)
+        }
         Command::Report(a) => {
             stage::report::run(&a.inputs, a.with_reference, a.markdown.as_deref())
         }
@@ -68,6 +75,22 @@ pub fn run(cli: Cli) -> Result<()> {
             a.title.as_deref(),
             &a.out,
         ),
+        Command::View(a) => {
+            let n = stage::view::run(&stage::view::ViewRequest {
+                from: a.from,
+                data_root: a.data_root,
+                clips: a.clip,
+                skills: a.skill,
+                stf: a.stf,
+                trajs: a.traj,
+                rollouts: a.rollouts,
+                trials: a.trial,
+                max_items: a.max,
+                out: a.out.clone(),
+            })?;
+            println!("wrote {} ({n} items)", a.out.display());
+            Ok(())
+        }
         Command::CheckFk(a) => stage::check_fk::run(&stage::Common::new(a)?),
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => stage::schema::run(&a.name),

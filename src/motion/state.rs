@@ -74,3 +74,32 @@ impl ClipFrames {
         })
     }
 }
+
+/// The part of a state that fixes where everything is: what a viewer draws
+/// and what a recorded rollout keeps per step.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct Posture {
+    /// Root world position, m.
+    pub root_pos: [f32; 3],
+    /// Root world rotation (x, y, z, w).
+    pub root_rot: [f32; 4],
+    /// `[J*3]` joint exp-maps, rad.
+    pub joint_rot: Vec<f32>,
+    /// `[O*3]` object positions, m.
+    pub obj_pos: Vec<f32>,
+    /// `[O*4]` object rotations (x, y, z, w).
+    pub obj_rot: Vec<f32>,
+}
+
+impl State {
+    /// This state's posture.
+    pub fn posture(&self) -> Posture {
+        Posture {
+            root_pos: self.root_pos,
+            root_rot: self.root_rot,
+            joint_rot: self.joint_rot.clone(),
+            obj_pos: self.obj_pos.clone(),
+            obj_rot: self.obj_rot.clone(),
+        }
+    }
+}

@@ -335,6 +335,17 @@ pub struct EpisodeRecord {
     pub actions: Vec<f32>,
 }
 
+/// One environment's step as `eval --record` keeps it.
+#[derive(Clone, Debug)]
+pub struct RecordedStep {
+    /// Posture after the step.
+    pub posture: crate::motion::state::Posture,
+    /// Reference frame (clip, frame) the step was scored against.
+    pub reference: Option<(u32, u32)>,
+    /// No reward target at this step.
+    pub masked: bool,
+}
+
 /// What one environment reports after a step.
 struct Outcome {
     reward: Option<f64>,
@@ -345,6 +356,7 @@ struct Outcome {
     /// The post-step history feature (empty without an encoder).
     feature: Vec<f32>,
     probe: Probe,
+    record: Option<RecordedStep>,
 }
 
 /// Totals of the steps since the last [`HumanoidEnv::take_stats`].
@@ -497,6 +509,7 @@ impl Ctx<'_> {
         ep: &mut Episode,
         a: &[f32],
         he: Option<&HeRuntime>,
+        record: bool,
         out: &mut [f32],
     ) -> Outcome {
         ep.actions.extend_from_slice(a);
@@ -505,15 +518,11 @@ impl Ctx<'_> {
         let s = w.get_state();
         let contacts = w.contacts();
         ep.t += 1;
-        let reference = ep
-            .traj
-            .steps
-            .get(ep.t)
-            .filter(|st| !st.masked)
-            .and_then(|st| {
-                self.lib
-                    .state(st.ref_clip? as usize, st.ref_frame? as usize)
-            });
+        let tracked = ep.traj.steps.get(ep.t).filter(|st| !st.masked);
+        let reference = tracked.and_then(|st| {
+            self.lib
+                .state(st.ref_clip? as usize, st.ref_frame? as usize)
+        });
         let (reward, sm) = match &reference {
             Some(r) => {
                 let c = contacts.reward_contacts(self.sk.contact_penalty_bodies());
@@ -544,6 +553,13 @@ impl Ctx<'_> {
         write_observation(w, &s, Some(&contacts), self.sk, ep.class, out);
         let probe = self.probe(&s);
         let feature = he.map_or_else(Vec::new, |h| h.feature(&s, self.sk));
+        let record = record.then(|| RecordedStep {
+            posture: s.posture(),
+            reference: tracked
+                .filter(|_| reference.is_some())
+                .and_then(|st| st.ref_clip.zip(st.ref_frame)),
+            masked: reference.is_none(),
+        });
         ep.prev_joint_vel = s.joint_vel;
         Outcome {
             reward,
@@ -553,6 +569,7 @@ impl Ctx<'_> {
             timeout,
             feature,
             probe,
+            record,
         }
     }
 
@@ -595,6 +612,8 @@ pub struct HumanoidEnv<'a> {
     stats: EnvStats,
     probes: Vec<Probe>,
     sm: Vec<Option<f64>>,
+    record: bool,
+    records: Vec<Option<RecordedStep>>,
 }
 
 /// Everything [`HumanoidEnv::new`] needs.
@@ -664,6 +683,8 @@ impl<'a> HumanoidEnv<'a> {
             stats: EnvStats::default(),
             probes: Vec::new(),
             sm: Vec::new(),
+            record: false,
+            records: Vec::new(),
         };
         env.refresh_ats();
         let mut draws = Vec::with_capacity(n);
@@ -719,6 +740,17 @@ impl<'a> HumanoidEnv<'a> {
     /// The SM reward of each environment at the last step (`None` when masked).
     pub fn sm_rewards(&self) -> &[Option<f64>] {
         &self.sm
+    }
+
+    /// Keep each step's posture and reference ([`HumanoidEnv::recorded`]).
+    pub fn set_recording(&mut self, on: bool) {
+        self.record = on;
+    }
+
+    /// Each environment's last step when recording is on (for an
+    /// environment whose episode ended, its final step).
+    pub fn recorded(&self) -> &[Option<RecordedStep>] {
+        &self.records
     }
 
     /// Take the totals since the last call.
@@ -833,7 +865,7 @@ impl<'a> HumanoidEnv<'a> {
                 let ((mut w, mut ep, mut row), f0) = ctx.start(r.traj, r.ats_key, he)?;
                 let mut feats = vec![f0];
                 for a in r.actions.chunks_exact(ad) {
-                    let o = ctx.advance(&mut w, &mut ep, a, he, &mut row);
+                    let o = ctx.advance(&mut w, &mut ep, a, he, false, &mut row);
                     feats.push(o.feature);
                 }
                 Ok(((w, ep, row), feats))
@@ -926,13 +958,14 @@ impl VecEnv for HumanoidEnv<'_> {
         }
         let ctx = &self.ctx;
         let he = self.he.as_ref();
+        let record = self.record;
         let mut outs: Vec<Outcome> = self
             .worlds
             .par_iter_mut()
             .zip(self.eps.par_iter_mut())
             .zip(self.obs.par_chunks_mut(od))
             .zip(actions.par_chunks_exact(ad))
-            .map(|(((w, ep), out), a)| ctx.advance(w, ep, a, he, out))
+            .map(|(((w, ep), out), a)| ctx.advance(w, ep, a, he, record, out))
             .collect();
         let feats: Vec<(usize, Vec<f32>)> = outs
             .iter_mut()
@@ -946,6 +979,7 @@ impl VecEnv for HumanoidEnv<'_> {
             .iter_mut()
             .map(|o| std::mem::take(&mut o.probe))
             .collect();
+        self.records = outs.iter_mut().map(|o| o.record.take()).collect();
         let mut res = StepResult {
             rewards,
             terminated: vec![false; n],

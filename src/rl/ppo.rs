@@ -89,6 +89,11 @@ pub struct PpoConfig {
     pub normalize_obs: bool,
     /// Normalise advantages over the whole batch.
     pub normalize_advantages: bool,
+    /// Merge the rollout into the observation statistics *after* the
+    /// mini-epochs instead of before them, so the update sees the inputs the
+    /// rollout's actions and log-probabilities were computed from (ratio 1
+    /// at the first minibatch). rl_games merges before (during) the update.
+    pub norm_after_update: bool,
     /// Policy head weights drawn from `U(-b, b)`; `None`: PyTorch default.
     pub policy_out_bound: Option<f64>,
 }
@@ -112,6 +117,7 @@ impl Default for PpoConfig {
             bounds_soft: 1.0,
             normalize_obs: true,
             normalize_advantages: true,
+            norm_after_update: false,
             policy_out_bound: Some(0.01),
         }
     }
@@ -627,7 +633,7 @@ impl Agent {
                 *a = ((*a as f64 - m) / s) as f32;
             }
         }
-        if self.cfg.normalize_obs {
+        if self.cfg.normalize_obs && !self.cfg.norm_after_update {
             self.norm.update(&ro.obs)?;
         }
         let dev = self.dev.clone();
@@ -693,6 +699,9 @@ impl Agent {
                 stats.total_loss += total.to_scalar::<f32>()? as f64;
                 stats.steps += 1;
             }
+        }
+        if self.cfg.normalize_obs && self.cfg.norm_after_update {
+            self.norm.update(&ro.obs)?;
         }
         let k = stats.steps as f64;
         stats.clip_frac /= k;

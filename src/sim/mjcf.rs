@@ -235,6 +235,17 @@ pub fn forward_kinematics(
     root_rot: [f32; 4],
     joint_rot: &[f32],
 ) -> Vec<f32> {
+    body_poses(m, root_pos, root_rot, joint_rot).0
+}
+
+/// [`forward_kinematics`] with the world rotations too: body positions
+/// `[B*3]` and unit quaternions (x, y, z, w) `[B*4]`.
+pub fn body_poses(
+    m: &Model,
+    root_pos: [f32; 3],
+    root_rot: [f32; 4],
+    joint_rot: &[f32],
+) -> (Vec<f32>, Vec<f32>) {
     use crate::motion::quat;
     let n = m.bodies.len();
     let mut rot = vec![quat::IDENTITY; n];
@@ -254,5 +265,8 @@ pub fn forward_kinematics(
             }
         }
     }
-    pos.iter().flat_map(|p| p.map(|v| v as f32)).collect()
+    (
+        pos.iter().flat_map(|p| p.map(|v| v as f32)).collect(),
+        rot.iter().flat_map(|q| q.map(|v| v as f32)).collect(),
+    )
 }

@@ -26,6 +26,7 @@ use crate::motion::MotionLib;
 use crate::reward::DatasetKind;
 use crate::rl::humanoid::{EnvConfig, HeRuntime, MaskedReward};
 use crate::rl::{Agent, VecEnv};
+use crate::table::rollout::RolloutStep;
 use crate::table::{self, eval as etable};
 use anyhow::{bail, ensure, Context, Result};
 use rand::SeedableRng;
@@ -48,6 +49,9 @@ pub struct EvalConfig {
     pub steps: usize,
     /// Row label of this policy in reports ("" = from its switches, e.g. "SM+STF").
     pub label: String,
+    /// Keep the first `record` finished trials of each cell step by step in
+    /// `eval_rollouts.parquet` (for `skillaug view --rollouts`); 0: none.
+    pub record: usize,
 }
 
 impl Default for EvalConfig {
@@ -58,6 +62,7 @@ impl Default for EvalConfig {
             metrics: vec!["sr".into(), "tsr".into(), "nsr".into(), "nr".into()],
             steps: 0,
             label: String::new(),
+            record: 0,
         }
     }
 }
@@ -151,7 +156,11 @@ struct Evaluator<'a> {
 impl Evaluator<'_> {
     /// `trials` episodes of the environment of `cell`, started in the clips
     /// of `cell.from`.
-    fn run_cell(&self, cell: &Cell, seed: u64) -> Result<Vec<etable::TrialRow>> {
+    fn run_cell(
+        &self,
+        cell: &Cell,
+        seed: u64,
+    ) -> Result<(Vec<etable::TrialRow>, Vec<RolloutStep>)> {
         let s = &self.setup;
         let clips: Vec<usize> = s
             .clips
@@ -183,7 +192,10 @@ impl Evaluator<'_> {
             self.agent.obs_dim(),
             env.obs_dim()
         );
+        env.set_recording(cfg.record > 0);
         let mut rows = Vec::with_capacity(cfg.trials);
+        let mut recorded = Vec::new();
+        let mut running: Vec<Vec<RolloutStep>> = vec![Vec::new(); n];
         let mut judges: Vec<Option<Judge>> = (0..n).map(|_| cell.rule.map(Judge::new)).collect();
         let mut sums = vec![(0.0f64, 0usize, 0usize); n];
         // each environment runs trials in turn until `trials` have started
@@ -205,12 +217,30 @@ impl Evaluator<'_> {
                     sums[e].0 += sm;
                     sums[e].1 += 1;
                 }
+                if let Some(rec) = &env.recorded()[e] {
+                    running[e].push(RolloutStep {
+                        metric: cell.metric.to_string(),
+                        from: cell.from.clone(),
+                        to: cell.to.clone(),
+                        trial: 0,
+                        step: sums[e].2 as u32,
+                        reference: rec.reference,
+                        masked: rec.masked,
+                        sm_reward: env.sm_rewards()[e],
+                        posture: rec.posture.clone(),
+                    });
+                }
                 if r.terminated[e] || r.truncated[e] {
+                    let trial = rows.len() as u32;
+                    let steps = std::mem::take(&mut running[e]);
+                    if (trial as usize) < cfg.record {
+                        recorded.extend(steps.into_iter().map(|s| RolloutStep { trial, ..s }));
+                    }
                     rows.push(etable::TrialRow {
                         metric: cell.metric.to_string(),
                         from: cell.from.clone(),
                         to: cell.to.clone(),
-                        trial: rows.len() as u32,
+                        trial,
                         success: judges[e].as_ref().map(Judge::success),
                         steps: sums[e].2 as u32,
                         mean_sm: if sums[e].1 > 0 {
@@ -230,7 +260,7 @@ impl Evaluator<'_> {
                 }
             }
         }
-        Ok(rows)
+        Ok((rows, recorded))
     }
 }
 
@@ -388,13 +418,16 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         cfg: &cfg,
     };
     let mut rows = Vec::new();
+    let mut recorded = Vec::new();
     for (k, c) in cells.iter().enumerate() {
         let seed = common
             .args
             .seed
             .wrapping_mul(1_000_003)
             .wrapping_add(k as u64 + 1);
-        rows.extend(ev.run_cell(c, seed)?);
+        let (r, rec) = ev.run_cell(c, seed)?;
+        rows.extend(r);
+        recorded.extend(rec);
     }
     let summary = etable::summarise(&label, &rows)?;
     let resolved = common.resolved_toml("eval", &cfg)?;
@@ -412,6 +445,13 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         &etable::summary_batch(&summary)?,
         &tmeta.table("eval_summary"),
     )?;
+    if cfg.record > 0 {
+        out.parquet(
+            "eval_rollouts.parquet",
+            &crate::table::rollout::batch(&recorded)?,
+            &tmeta.table("eval_rollouts"),
+        )?;
+    }
     out.text("eval.resolved.toml", &resolved)?;
     out.commit()?;
     if !common.args.quiet {

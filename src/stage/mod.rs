@@ -14,6 +14,7 @@ pub mod run;
 pub mod sample_stf;
 pub mod schema;
 pub mod train;
+pub mod view;
 
 use crate::cli::StageArgs;
 use crate::config::{self, Recipe, SetArg};

@@ -140,6 +140,9 @@ pub struct PpoOverrides {
     pub critic_coef: Option<f64>,
     /// Bounds-loss weight.
     pub bounds_coef: Option<f64>,
+    /// Merge observation statistics after the update (see
+    /// [`PpoConfig::norm_after_update`]).
+    pub norm_after_update: Option<bool>,
 }
 
 impl Default for TrainConfig {
@@ -210,7 +213,8 @@ impl TrainConfig {
             lambda,
             clip,
             critic_coef,
-            bounds_coef
+            bounds_coef,
+            norm_after_update
         );
         c
     }

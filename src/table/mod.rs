@@ -15,6 +15,7 @@ pub mod frames;
 pub mod he;
 pub mod io;
 pub mod read_util;
+pub mod rollout;
 pub mod stf;
 pub mod stg;
 pub mod train;
@@ -151,6 +152,7 @@ pub const TABLES: &[&str] = &[
     "train_metrics",
     "eval_trials",
     "eval_summary",
+    "eval_rollouts",
 ];
 
 /// The columns of table `name`.
@@ -166,6 +168,7 @@ pub fn columns_of(name: &str) -> Option<Vec<ColumnSpec>> {
         "train_metrics" => Some(train::columns()),
         "eval_trials" => Some(eval::trial_columns()),
         "eval_summary" => Some(eval::summary_columns()),
+        "eval_rollouts" => Some(rollout::columns()),
         _ => None,
     }
 }
