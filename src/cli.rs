@@ -37,7 +37,7 @@ pub enum Command {
     Eval(EvalArgs),
     /// Render eval summaries as tables shaped like the paper's (terminal and Markdown)
     Report(ReportArgs),
-    /// Plot training curves from train_metrics.parquet files as a PNG
+    /// Plot a table as a PNG: training or HE loss curves, STG N-histogram, eval bar chart
     Plot(PlotArgs),
     /// Write one HTML page that plays back clips, STF samples and recorded rollouts
     View(ViewArgs),
@@ -176,15 +176,15 @@ pub struct ReportArgs {
 /// `skillaug plot`.
 #[derive(Debug, Args)]
 pub struct PlotArgs {
-    /// train_metrics.parquet files or run folders holding one.
+    /// Tables of one kind: train_metrics (or run folders holding one), he_loss, stg_edges or eval_summary.
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     /// Output PNG.
     #[arg(long, default_value = "curve.png")]
     pub out: PathBuf,
-    /// Metric column to plot.
-    #[arg(long, default_value = "mean_sm_reward")]
-    pub metric: String,
+    /// Column to draw for curves (default: mean_sm_reward for train_metrics, total for he_loss).
+    #[arg(long)]
+    pub metric: Option<String>,
     /// Legend labels, one per input (default: folder names).
     #[arg(long)]
     pub label: Vec<String>,

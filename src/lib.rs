@@ -66,15 +66,16 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Report(a) => {
             stage::report::run(&a.inputs, a.with_reference, a.markdown.as_deref())
         }
-        Command::Plot(a) => stage::plot::run(
-            &a.inputs,
-            &a.label,
-            &a.metric,
-            a.smooth,
-            &a.goal,
-            a.title.as_deref(),
-            &a.out,
-        ),
+        Command::Plot(a) => stage::plot::run(&stage::plot::PlotRequest {
+            inputs: &a.inputs,
+            labels: &a.label,
+            metric: a.metric.as_deref(),
+            smooth: a.smooth,
+            goals: &a.goal,
+            title: a.title.as_deref(),
+            out: &a.out,
+        })
+        .map(|_| ()),
         Command::View(a) => {
             let n = stage::view::run(&stage::view::ViewRequest {
                 from: a.from,

@@ -1,4 +1,5 @@
-//! Small PNG line charts (training curves) with a built-in 5x7 bitmap font.
+//! Small PNG line and bar charts (training curves, loss curves, histograms,
+//! eval summaries) with a built-in 5x7 bitmap font.
 //!
 //! Written here because the plotting crates render text only through system
 //! or bundled TrueType fonts, which a bare CI machine lacks; a chart needs
@@ -95,6 +96,8 @@ fn glyph(c: char) -> [u8; 7] {
         '(' => [2, 4, 8, 8, 8, 4, 2],
         ')' => [8, 4, 2, 2, 2, 4, 8],
         '_' => [0, 0, 0, 0, 0, 0, 31],
+        '>' => [8, 4, 2, 1, 2, 4, 8],
+        '<' => [2, 4, 8, 16, 8, 4, 2],
         _ => [0; 7],
     }
 }
@@ -220,21 +223,8 @@ pub fn write_png(chart: &Chart, path: &Path) -> Result<()> {
     let px = |x: f64| LEFT as f64 + (x - x0) / (x1 - x0) * pw;
     let py = |y: f64| TOP as f64 + (1.0 - (y - y0) / (y1 - y0)) * ph;
     let mut c = Canvas::new();
-    let grey = [210, 210, 210];
     let black = [30, 30, 30];
-    let mut t = (y0 / ys).ceil() * ys;
-    while t <= y1 + 1e-9 {
-        c.line(px(x0), py(t), px(x1), py(t), grey, 1);
-        let l = label(t, ys);
-        c.text(
-            LEFT as i64 - 6 - text_width(&l, 1),
-            py(t) as i64 - 3,
-            &l,
-            1,
-            black,
-        );
-        t += ys;
-    }
+    c.y_grid(y0, y1, ys, py);
     let mut t = (x0 / xs).ceil() * xs;
     while t <= x1 + 1e-9 {
         c.line(px(t), py(y0), px(t), py(y0) + 4.0, black, 1);
@@ -286,34 +276,188 @@ pub fn write_png(chart: &Chart, path: &Path) -> Result<()> {
         );
         c.text(LEFT as i64 + 36, ly, &s.label, 1, black);
     }
-    c.text(
-        (W as i64 - text_width(&chart.title, 2)) / 2,
-        10,
-        &chart.title,
-        2,
-        black,
-    );
-    c.text(
-        (W as i64 - text_width(&chart.x_label, 1)) / 2,
-        H as i64 - 20,
-        &chart.x_label,
-        1,
-        black,
-    );
-    c.text(6, TOP as i64 - 14, &chart.y_label, 1, black);
+    c.labels(&chart.title, &chart.x_label, &chart.y_label);
+    c.write(path)
+}
 
-    let tmp = path.with_extension("png.tmp");
-    {
-        let f = std::fs::File::create(&tmp)
-            .with_context(|| format!("cannot write {}", tmp.display()))?;
-        let mut enc = png::Encoder::new(std::io::BufWriter::new(f), W as u32, H as u32);
-        enc.set_color(png::ColorType::Rgb);
-        enc.set_depth(png::BitDepth::Eight);
-        let mut wr = enc.write_header()?;
-        wr.write_image_data(&c.px)?;
+impl Canvas {
+    /// Encode as PNG at `path` (a temporary file, then renamed).
+    fn write(&self, path: &Path) -> Result<()> {
+        let tmp = path.with_extension("png.tmp");
+        {
+            let f = std::fs::File::create(&tmp)
+                .with_context(|| format!("cannot write {}", tmp.display()))?;
+            let mut enc = png::Encoder::new(std::io::BufWriter::new(f), W as u32, H as u32);
+            enc.set_color(png::ColorType::Rgb);
+            enc.set_depth(png::BitDepth::Eight);
+            let mut wr = enc.write_header()?;
+            wr.write_image_data(&self.px)?;
+        }
+        std::fs::rename(&tmp, path)?;
+        Ok(())
     }
-    std::fs::rename(&tmp, path)?;
-    Ok(())
+
+    /// Text read bottom to top (turned a quarter left), its first letter's
+    /// left edge at `top` + the text's length: the text hangs from `top`.
+    fn text_up(&mut self, x: i64, top: i64, s: &str, c: [u8; 3]) {
+        let len = s.chars().count() as i64 * 6;
+        for (i, ch) in s.chars().enumerate() {
+            let g = glyph(ch);
+            for (row, bits) in g.iter().enumerate() {
+                for col in 0..5 {
+                    if bits & (1 << (4 - col)) != 0 {
+                        // glyph (col, row) -> (x + row, top + len - (i*6 + col))
+                        self.set(x + row as i64, top + len - (i as i64 * 6 + col), c);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Filled rectangle between pixel corners.
+    fn rect(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, c: [u8; 3]) {
+        let (xa, xb) = (x0.min(x1).round() as i64, x0.max(x1).round() as i64);
+        let (ya, yb) = (y0.min(y1).round() as i64, y0.max(y1).round() as i64);
+        for y in ya..=yb {
+            for x in xa..=xb {
+                self.set(x, y, c);
+            }
+        }
+    }
+
+    /// Title centred on top, x label under the plot, y label above the axis.
+    fn labels(&mut self, title: &str, x_label: &str, y_label: &str) {
+        let black = [30, 30, 30];
+        self.text((W as i64 - text_width(title, 2)) / 2, 10, title, 2, black);
+        self.text(
+            (W as i64 - text_width(x_label, 1)) / 2,
+            H as i64 - 14,
+            x_label,
+            1,
+            black,
+        );
+        self.text(6, TOP as i64 - 14, y_label, 1, black);
+    }
+
+    /// Horizontal grid lines with tick labels on the y axis from `y0` to
+    /// `y1` (in steps of `ys`), mapped by `py`.
+    fn y_grid(&mut self, y0: f64, y1: f64, ys: f64, py: impl Fn(f64) -> f64) {
+        let mut t = (y0 / ys).ceil() * ys;
+        while t <= y1 + 1e-9 {
+            self.line(LEFT as f64, py(t), (W - RIGHT) as f64, py(t), [210, 210, 210], 1);
+            let l = label(t, ys);
+            self.text(
+                LEFT as i64 - 6 - text_width(&l, 1),
+                py(t) as i64 - 3,
+                &l,
+                1,
+                [30, 30, 30],
+            );
+            t += ys;
+        }
+    }
+}
+
+/// A grouped bar chart: one group per category, one bar per series.
+pub struct BarChart {
+    /// Title above the plot.
+    pub title: String,
+    /// Label under the categories.
+    pub x_label: String,
+    /// Label of the y axis.
+    pub y_label: String,
+    /// Category names, left to right.
+    pub categories: Vec<String>,
+    /// Series: label and, per category, the value and an optional interval.
+    pub series: Vec<BarSeries>,
+}
+
+/// One series of a [`BarChart`].
+pub struct BarSeries {
+    /// Legend label.
+    pub label: String,
+    /// Per category: value (NaN: no bar) and optional (low, high) whiskers.
+    pub values: Vec<(f64, Option<(f64, f64)>)>,
+}
+
+/// Render a bar chart as a PNG at `path`. Category labels are cut to the
+/// width of their group.
+pub fn write_bars_png(chart: &BarChart, path: &Path) -> Result<()> {
+    let nc = chart.categories.len().max(1);
+    let ns = chart.series.len().max(1);
+    let mut y1 = 0f64;
+    for s in &chart.series {
+        for (v, iv) in &s.values {
+            if v.is_finite() {
+                y1 = y1.max(*v);
+            }
+            if let Some((_, hi)) = iv {
+                if hi.is_finite() {
+                    y1 = y1.max(*hi);
+                }
+            }
+        }
+    }
+    if y1 <= 0.0 {
+        y1 = 1.0;
+    }
+    let ys = tick_step(y1, 5.0);
+    y1 = (y1 / ys).ceil() * ys;
+    let gw = (W - LEFT - RIGHT) as f64 / nc as f64;
+    // category names that do not fit under their group are written upwards
+    // in a taller bottom margin
+    let longest = chart.categories.iter().map(|c| c.chars().count()).max().unwrap_or(0);
+    let upright = text_width(&"x".repeat(longest), 1) as f64 > gw - 2.0;
+    let bottom = if upright { (longest * 6 + 30).clamp(BOTTOM, 150) } else { BOTTOM };
+    let ph = (H - TOP - bottom) as f64;
+    let py = |y: f64| TOP as f64 + (1.0 - y / y1) * ph;
+    let mut c = Canvas::new();
+    c.y_grid(0.0, y1, ys, py);
+    let black = [30, 30, 30];
+    let bw = (gw * 0.8 / ns as f64).max(1.0);
+    for (k, cat) in chart.categories.iter().enumerate() {
+        let gx = LEFT as f64 + k as f64 * gw;
+        for (j, s) in chart.series.iter().enumerate() {
+            let Some(&(v, iv)) = s.values.get(k) else {
+                continue;
+            };
+            let x0 = gx + gw * 0.1 + j as f64 * bw;
+            if v.is_finite() {
+                c.rect(x0, py(0.0), x0 + bw - 2.0, py(v.max(0.0)), COLORS[j % COLORS.len()]);
+            }
+            if let Some((lo, hi)) = iv.filter(|(a, b)| a.is_finite() && b.is_finite()) {
+                let xm = x0 + bw / 2.0 - 1.0;
+                c.line(xm, py(lo), xm, py(hi), black, 1);
+                c.line(xm - 3.0, py(lo), xm + 3.0, py(lo), black, 1);
+                c.line(xm - 3.0, py(hi), xm + 3.0, py(hi), black, 1);
+            }
+        }
+        if upright {
+            let fit = (bottom - 30) / 6;
+            let l: String = cat.chars().take(fit).collect();
+            c.text_up((gx + gw / 2.0) as i64 - 3, (H - bottom) as i64 + 6, &l, black);
+        } else {
+            c.text(
+                (gx + gw / 2.0) as i64 - text_width(cat, 1) / 2,
+                (H - bottom) as i64 + 8,
+                cat,
+                1,
+                black,
+            );
+        }
+    }
+    c.line(LEFT as f64, py(0.0), (W - RIGHT) as f64, py(0.0), black, 1);
+    c.line(LEFT as f64, py(0.0), LEFT as f64, py(y1), black, 1);
+    if chart.series.len() > 1 || chart.series.iter().any(|s| !s.label.is_empty()) {
+        for (j, s) in chart.series.iter().enumerate() {
+            let ly = TOP as i64 + 6 + 14 * j as i64;
+            let x = (W - RIGHT) as i64 - 20 - text_width(&s.label, 1);
+            c.rect(x as f64 - 16.0, ly as f64, x as f64 - 6.0, ly as f64 + 6.0, COLORS[j % COLORS.len()]);
+            c.text(x, ly, &s.label, 1, black);
+        }
+    }
+    c.labels(&chart.title, &chart.x_label, &chart.y_label);
+    c.write(path)
 }
 
 #[cfg(test)]

@@ -5,7 +5,6 @@
 //! (Tables 1, 2 and 5, `reference/paper-results.md`) beside ours.
 
 use anyhow::{bail, Context, Result};
-use polars::prelude::{DataFrame, ParquetReader, SerReader};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -300,16 +299,9 @@ pub struct MethodRow {
     pub tsr: BTreeMap<(String, String), f64>,
 }
 
-fn read(path: &Path) -> Result<DataFrame> {
-    let f = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    ParquetReader::new(f)
-        .finish()
-        .with_context(|| format!("{}: cannot read as Parquet", path.display()))
-}
-
 /// The rows of one summary file (polars), one per label.
 pub fn load(path: &Path) -> Result<Vec<MethodRow>> {
-    let df = read(path)?;
+    let df = crate::table::io::read_frame(path)?;
     for c in ["label", "metric", "from_skill", "to_skill", "value"] {
         if df.column(c).is_err() {
             bail!(

@@ -156,3 +156,13 @@ pub fn read_parquet(path: &Path) -> Result<ReadTable> {
         .with_context(|| format!("reading {}", path.display()))?;
     Ok(ReadTable { batches, metadata })
 }
+
+/// Read a whole Parquet file as a polars frame (for summaries, group-bys
+/// and joins).
+pub fn read_frame(path: &Path) -> Result<polars::prelude::DataFrame> {
+    use polars::prelude::{ParquetReader, SerReader};
+    let f = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    ParquetReader::new(f)
+        .finish()
+        .with_context(|| format!("{}: cannot read as Parquet", path.display()))
+}
