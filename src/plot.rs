@@ -344,7 +344,14 @@ impl Canvas {
     fn y_grid(&mut self, y0: f64, y1: f64, ys: f64, py: impl Fn(f64) -> f64) {
         let mut t = (y0 / ys).ceil() * ys;
         while t <= y1 + 1e-9 {
-            self.line(LEFT as f64, py(t), (W - RIGHT) as f64, py(t), [210, 210, 210], 1);
+            self.line(
+                LEFT as f64,
+                py(t),
+                (W - RIGHT) as f64,
+                py(t),
+                [210, 210, 210],
+                1,
+            );
             let l = label(t, ys);
             self.text(
                 LEFT as i64 - 6 - text_width(&l, 1),
@@ -406,9 +413,18 @@ pub fn write_bars_png(chart: &BarChart, path: &Path) -> Result<()> {
     let gw = (W - LEFT - RIGHT) as f64 / nc as f64;
     // category names that do not fit under their group are written upwards
     // in a taller bottom margin
-    let longest = chart.categories.iter().map(|c| c.chars().count()).max().unwrap_or(0);
+    let longest = chart
+        .categories
+        .iter()
+        .map(|c| c.chars().count())
+        .max()
+        .unwrap_or(0);
     let upright = text_width(&"x".repeat(longest), 1) as f64 > gw - 2.0;
-    let bottom = if upright { (longest * 6 + 30).clamp(BOTTOM, 150) } else { BOTTOM };
+    let bottom = if upright {
+        (longest * 6 + 30).clamp(BOTTOM, 150)
+    } else {
+        BOTTOM
+    };
     let ph = (H - TOP - bottom) as f64;
     let py = |y: f64| TOP as f64 + (1.0 - y / y1) * ph;
     let mut c = Canvas::new();
@@ -423,7 +439,13 @@ pub fn write_bars_png(chart: &BarChart, path: &Path) -> Result<()> {
             };
             let x0 = gx + gw * 0.1 + j as f64 * bw;
             if v.is_finite() {
-                c.rect(x0, py(0.0), x0 + bw - 2.0, py(v.max(0.0)), COLORS[j % COLORS.len()]);
+                c.rect(
+                    x0,
+                    py(0.0),
+                    x0 + bw - 2.0,
+                    py(v.max(0.0)),
+                    COLORS[j % COLORS.len()],
+                );
             }
             if let Some((lo, hi)) = iv.filter(|(a, b)| a.is_finite() && b.is_finite()) {
                 let xm = x0 + bw / 2.0 - 1.0;
@@ -435,7 +457,12 @@ pub fn write_bars_png(chart: &BarChart, path: &Path) -> Result<()> {
         if upright {
             let fit = (bottom - 30) / 6;
             let l: String = cat.chars().take(fit).collect();
-            c.text_up((gx + gw / 2.0) as i64 - 3, (H - bottom) as i64 + 6, &l, black);
+            c.text_up(
+                (gx + gw / 2.0) as i64 - 3,
+                (H - bottom) as i64 + 6,
+                &l,
+                black,
+            );
         } else {
             c.text(
                 (gx + gw / 2.0) as i64 - text_width(cat, 1) / 2,
@@ -452,7 +479,13 @@ pub fn write_bars_png(chart: &BarChart, path: &Path) -> Result<()> {
         for (j, s) in chart.series.iter().enumerate() {
             let ly = TOP as i64 + 6 + 14 * j as i64;
             let x = (W - RIGHT) as i64 - 20 - text_width(&s.label, 1);
-            c.rect(x as f64 - 16.0, ly as f64, x as f64 - 6.0, ly as f64 + 6.0, COLORS[j % COLORS.len()]);
+            c.rect(
+                x as f64 - 16.0,
+                ly as f64,
+                x as f64 - 6.0,
+                ly as f64 + 6.0,
+                COLORS[j % COLORS.len()],
+            );
             c.text(x, ly, &s.label, 1, black);
         }
     }

@@ -11,7 +11,12 @@ use std::process::Command;
 fn tiny_policy(from: &str, out: &str) {
     let mut a = vec!["train", "--from", from, "--out", out, "-q"];
     a.extend_from_slice(TINY_TRAIN);
-    a.extend_from_slice(&["--set", "train.samples=128", "--set", "train.skills=[\"run\"]"]);
+    a.extend_from_slice(&[
+        "--set",
+        "train.samples=128",
+        "--set",
+        "train.skills=[\"run\"]",
+    ]);
     ok(&a);
 }
 
@@ -127,9 +132,20 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
 
     // STF samples with masked states (wide neighbourhood, no graph)
     ok(&[
-        "sample-stf", "--out", from, "-q", "--seed", "3",
-        "--set", "sample-stf.p_e=0", "--set", "sample-stf.p_n=1.0",
-        "--set", "sample-stf.eps.dof=0.5", "--set", "sample-stf.trajectories=20",
+        "sample-stf",
+        "--out",
+        from,
+        "-q",
+        "--seed",
+        "3",
+        "--set",
+        "sample-stf.p_e=0",
+        "--set",
+        "sample-stf.p_n=1.0",
+        "--set",
+        "sample-stf.eps.dof=0.5",
+        "--set",
+        "sample-stf.trajectories=20",
     ]);
     let stf = run.join("stf_samples.parquet");
     let trajs = skillaug::table::stf::read_trajectories(&stf).unwrap();
@@ -143,10 +159,24 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
     tiny_policy(from, pol.to_str().unwrap());
     let ev = dir.path().join("ev");
     ok(&[
-        "eval", "--from", from, "--policy", pol.to_str().unwrap(),
-        "--out", ev.to_str().unwrap(), "-q", "--record", "2",
-        "--set", "eval.trials=3", "--set", "eval.envs=3", "--set", "eval.steps=12",
-        "--set", "eval.metrics=[\"sr\", \"nr\"]",
+        "eval",
+        "--from",
+        from,
+        "--policy",
+        pol.to_str().unwrap(),
+        "--out",
+        ev.to_str().unwrap(),
+        "-q",
+        "--record",
+        "2",
+        "--set",
+        "eval.trials=3",
+        "--set",
+        "eval.envs=3",
+        "--set",
+        "eval.steps=12",
+        "--set",
+        "eval.metrics=[\"sr\", \"nr\"]",
     ]);
     let steps = skillaug::table::rollout::read(&ev.join("eval_rollouts.parquet")).unwrap();
     for (metric, trial) in [("sr", 0), ("sr", 1), ("nr", 0), ("nr", 1)] {
@@ -161,7 +191,10 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
             assert_eq!(s.posture.joint_rot.len(), 3 * lib.skeleton.n_joints());
         }
         // the reference advances one frame per step (masked steps have none)
-        let first = st.iter().find(|s| s.reference.is_some()).expect("a scored step");
+        let first = st
+            .iter()
+            .find(|s| s.reference.is_some())
+            .expect("a scored step");
         let (c0, f0) = first.reference.unwrap();
         for s in st.iter().filter(|s| s.reference.is_some()) {
             assert_eq!(
@@ -175,19 +208,35 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
             assert_eq!(st.len(), 12, "an SR trial runs eval.steps");
         }
     }
-    assert!(!steps.iter().any(|s| s.trial >= 2), "only --record 2 trials kept");
+    assert!(
+        !steps.iter().any(|s| s.trial >= 2),
+        "only --record 2 trials kept"
+    );
 
     // the page: clip 0, the STF trajectory, the recorded trials
     let page = dir.path().join("page.html");
     let traj = masked_traj.traj_id.to_string();
     let text = ok(&[
-        "view", "--from", from, "--clip", "0", "--stf", stf.to_str().unwrap(),
-        "--traj", &traj, "--rollouts", ev.to_str().unwrap(),
-        "--out", page.to_str().unwrap(),
+        "view",
+        "--from",
+        from,
+        "--clip",
+        "0",
+        "--stf",
+        stf.to_str().unwrap(),
+        "--traj",
+        &traj,
+        "--rollouts",
+        ev.to_str().unwrap(),
+        "--out",
+        page.to_str().unwrap(),
     ]);
     assert!(text.contains("(6 items)"), "{text}");
     let html = std::fs::read_to_string(&page).unwrap();
-    assert!(!html.contains("src=\"http") && !html.contains("import "), "self-contained");
+    assert!(
+        !html.contains("src=\"http") && !html.contains("import "),
+        "self-contained"
+    );
     let scene = scene_of(&html);
     let items = scene["items"].as_array().unwrap();
     let nb = scene["bodies"].as_array().unwrap().len();
@@ -218,7 +267,12 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
         s["frames"].as_u64().unwrap() as usize,
         masked_traj.steps.len() + 1
     );
-    let marks: Vec<u64> = s["masked"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+    let marks: Vec<u64> = s["masked"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
     let want: Vec<u64> = std::iter::once(0)
         .chain(masked_traj.steps.iter().map(|(m, _)| *m as u64))
         .collect();
@@ -243,7 +297,12 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
     let profile = dir.path().join("chrome");
     let url = format!("file://{}", page.display());
     for (k, what) in [(0, "clip"), (1, "stf"), (2, "rollout")] {
-        let dom = browse(&chrome, &profile, &format!("{url}#item={k}"), &["--dump-dom"]);
+        let dom = browse(
+            &chrome,
+            &profile,
+            &format!("{url}#item={k}"),
+            &["--dump-dom"],
+        );
         let errors = element(&dom, "errors");
         assert!(errors.trim().is_empty(), "{what}: page errors: {errors}");
         let counter = element(&dom, "frame");
@@ -252,7 +311,10 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
             .nth(1)
             .and_then(|v| v.parse().ok())
             .unwrap_or_else(|| panic!("{what}: frame counter `{counter}`"));
-        assert!(n > 0, "{what}: the frame counter did not advance: `{counter}`");
+        assert!(
+            n > 0,
+            "{what}: the frame counter did not advance: `{counter}`"
+        );
         if what == "rollout" {
             assert!(element(&dom, "label0").starts_with("rollout"), "{what}");
             assert!(element(&dom, "label1").starts_with("reference"), "{what}");
@@ -263,7 +325,10 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
         &chrome,
         &profile,
         &format!("{url}#item=0&frame=20&paused"),
-        &["--window-size=800,450", &format!("--screenshot={}", shot.display())],
+        &[
+            "--window-size=800,450",
+            &format!("--screenshot={}", shot.display()),
+        ],
     );
     let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&shot).unwrap()));
     let mut r = dec.read_info().unwrap();
@@ -274,9 +339,18 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
     let bg = px[0];
     let differ = px
         .iter()
-        .filter(|p| (0..3).map(|i| (p[i] as i32 - bg[i] as i32).abs()).sum::<i32>() > 30)
+        .filter(|p| {
+            (0..3)
+                .map(|i| (p[i] as i32 - bg[i] as i32).abs())
+                .sum::<i32>()
+                > 30
+        })
         .count();
-    assert!(differ * 10 > px.len(), "screenshot nearly blank: {differ} of {} pixels", px.len());
+    assert!(
+        differ * 10 > px.len(),
+        "screenshot nearly blank: {differ} of {} pixels",
+        px.len()
+    );
     // the humanoid is drawn in blue: pixels clearly bluer than grey
     let figure = px
         .iter()
@@ -290,20 +364,41 @@ fn view_refuses_unknown_clips_and_leaves_no_page() {
     let (dir, run) = ingested("ballplay");
     let page = dir.path().join("p.html");
     let err = fails(&[
-        "view", "--from", run.to_str().unwrap(), "--clip", "no_such_clip",
-        "--out", page.to_str().unwrap(),
+        "view",
+        "--from",
+        run.to_str().unwrap(),
+        "--clip",
+        "no_such_clip",
+        "--out",
+        page.to_str().unwrap(),
     ]);
     assert!(err.contains("no clip `no_such_clip`"), "{err}");
     let err = fails(&[
-        "view", "--from", run.to_str().unwrap(), "--skill", "juggle",
-        "--out", page.to_str().unwrap(),
+        "view",
+        "--from",
+        run.to_str().unwrap(),
+        "--skill",
+        "juggle",
+        "--out",
+        page.to_str().unwrap(),
     ]);
-    assert!(err.contains("no clip of skill `juggle`") && err.contains("run"), "{err}");
+    assert!(
+        err.contains("no clip of skill `juggle`") && err.contains("run"),
+        "{err}"
+    );
     let err = fails(&[
-        "view", "--from", run.to_str().unwrap(), "--rollouts",
-        run.join("clips.parquet").to_str().unwrap(), "--out", page.to_str().unwrap(),
+        "view",
+        "--from",
+        run.to_str().unwrap(),
+        "--rollouts",
+        run.join("clips.parquet").to_str().unwrap(),
+        "--out",
+        page.to_str().unwrap(),
     ]);
-    assert!(err.contains("is a `clips` table, expected `eval_rollouts`"), "{err}");
+    assert!(
+        err.contains("is a `clips` table, expected `eval_rollouts`"),
+        "{err}"
+    );
     assert!(!page.exists());
     assert_eq!(entries(dir.path()), vec!["run"]);
 }
@@ -318,9 +413,20 @@ fn plot_draws_every_table_kind() {
     tiny_policy(from, pol.to_str().unwrap());
     let ev = dir.path().join("ev");
     ok(&[
-        "eval", "--from", from, "--policy", pol.to_str().unwrap(),
-        "--out", ev.to_str().unwrap(), "-q",
-        "--set", "eval.trials=2", "--set", "eval.envs=2", "--set", "eval.steps=5",
+        "eval",
+        "--from",
+        from,
+        "--policy",
+        pol.to_str().unwrap(),
+        "--out",
+        ev.to_str().unwrap(),
+        "-q",
+        "--set",
+        "eval.trials=2",
+        "--set",
+        "eval.envs=2",
+        "--set",
+        "eval.steps=5",
     ]);
     let png_of = |name: &str, args: &[&str]| -> Vec<u8> {
         let out = dir.path().join(format!("{name}.png"));
@@ -343,7 +449,11 @@ fn plot_draws_every_table_kind() {
     for (name, args, least) in [
         // legend swatches alone draw under 80 pixels
         ("curve", vec![pol.to_str().unwrap()], 150),
-        ("length", vec![pol.to_str().unwrap(), "--metric", "mean_episode_length"], 150),
+        (
+            "length",
+            vec![pol.to_str().unwrap(), "--metric", "mean_episode_length"],
+            150,
+        ),
         ("he", vec![he.to_str().unwrap()], 150),
         ("stg", vec![stg.to_str().unwrap()], 500),
         ("eval", vec![summary.to_str().unwrap()], 150),
@@ -360,5 +470,8 @@ fn plot_draws_every_table_kind() {
     let err = fails(&["plot", stg.to_str().unwrap(), he.to_str().unwrap()]);
     assert!(err.contains("plot tables of one kind together"), "{err}");
     let err = fails(&["plot", he.to_str().unwrap(), "--metric", "nope"]);
-    assert!(err.contains("no column `nope`") && err.contains("prediction"), "{err}");
+    assert!(
+        err.contains("no column `nope`") && err.contains("prediction"),
+        "{err}"
+    );
 }

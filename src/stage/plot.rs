@@ -27,7 +27,10 @@ pub fn curve_of(path: &Path, x: &str, metric: &str) -> Result<Vec<(f64, f64)>> {
     let f64s = |a: &std::sync::Arc<dyn Array>, name: &str| -> Result<Vec<f64>> {
         let c = arrow::compute::cast(a, &DataType::Float64)
             .with_context(|| format!("{}: column `{name}` is not numeric", path.display()))?;
-        let c = c.as_any().downcast_ref::<Float64Array>().expect("cast to f64");
+        let c = c
+            .as_any()
+            .downcast_ref::<Float64Array>()
+            .expect("cast to f64");
         Ok((0..c.len())
             .map(|i| if c.is_null(i) { f64::NAN } else { c.value(i) })
             .collect())
@@ -106,8 +109,12 @@ pub fn n_histogram(path: &Path) -> Result<Vec<(u32, u32)>> {
         .sort(["n_masked"], SortMultipleOptions::default())
         .collect()
         .with_context(|| format!("{}: histogram of n_masked", path.display()))?;
-    let n = g.column("n_masked")?.cast(&polars::prelude::DataType::UInt32)?;
-    let e = g.column("edges")?.cast(&polars::prelude::DataType::UInt32)?;
+    let n = g
+        .column("n_masked")?
+        .cast(&polars::prelude::DataType::UInt32)?;
+    let e = g
+        .column("edges")?
+        .cast(&polars::prelude::DataType::UInt32)?;
     let (n, e) = (n.u32()?, e.u32()?);
     Ok((0..g.height())
         .map(|i| (n.get(i).unwrap_or(0), e.get(i).unwrap_or(0)))
@@ -119,9 +126,20 @@ type Cell = (String, String, f64, Option<(f64, f64)>);
 
 fn eval_cells(path: &Path) -> Result<Vec<Cell>> {
     let df = crate::table::io::read_frame(path)?;
-    for c in ["label", "metric", "from_skill", "to_skill", "value", "ci_low", "ci_high"] {
+    for c in [
+        "label",
+        "metric",
+        "from_skill",
+        "to_skill",
+        "value",
+        "ci_low",
+        "ci_high",
+    ] {
         if df.column(c).is_err() {
-            bail!("{}: no column `{c}`: not an eval_summary table", path.display());
+            bail!(
+                "{}: no column `{c}`: not an eval_summary table",
+                path.display()
+            );
         }
     }
     let s = |c: &str| -> Result<Vec<String>> {
@@ -132,7 +150,9 @@ fn eval_cells(path: &Path) -> Result<Vec<Cell>> {
     };
     let f = |c: &str| -> Result<Vec<f64>> {
         let col = df.column(c)?.f64()?.clone();
-        Ok((0..col.len()).map(|i| col.get(i).unwrap_or(f64::NAN)).collect())
+        Ok((0..col.len())
+            .map(|i| col.get(i).unwrap_or(f64::NAN))
+            .collect())
     };
     let (label, metric) = (s("label")?, s("metric")?);
     let (from, to) = (s("from_skill")?, s("to_skill")?);
@@ -188,7 +208,11 @@ pub fn run(req: &PlotRequest<'_>) -> Result<String> {
     let label_of = |i: usize| -> String {
         req.labels.get(i).cloned().unwrap_or_else(|| {
             let p = &req.inputs[i];
-            let p = if p.is_dir() { p.as_path() } else { p.parent().unwrap_or(p) };
+            let p = if p.is_dir() {
+                p.as_path()
+            } else {
+                p.parent().unwrap_or(p)
+            };
             p.file_name()
                 .map_or("run".into(), |s| s.to_string_lossy().into_owned())
         })
@@ -228,7 +252,10 @@ pub fn run(req: &PlotRequest<'_>) -> Result<String> {
                 .collect::<Result<_>>()?;
             let top = hists.iter().flatten().map(|h| h.0).max().unwrap_or(0);
             let chart = BarChart {
-                title: req.title.unwrap_or("STG masked states per edge").to_string(),
+                title: req
+                    .title
+                    .unwrap_or("STG masked states per edge")
+                    .to_string(),
                 x_label: "masked states N (Eq. 20)".into(),
                 y_label: "edges".into(),
                 categories: (0..=top).map(|n| n.to_string()).collect(),
@@ -280,7 +307,9 @@ pub fn run(req: &PlotRequest<'_>) -> Result<String> {
                 .collect();
             let chart = BarChart {
                 title: req.title.unwrap_or("eval summary").to_string(),
-                x_label: "cell (SR / TSR / NSR: success rate with 95 % interval; NR: mean SM reward)".into(),
+                x_label:
+                    "cell (SR / TSR / NSR: success rate with 95 % interval; NR: mean SM reward)"
+                        .into(),
                 y_label: "value".into(),
                 categories: cats,
                 series,
