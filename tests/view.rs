@@ -158,26 +158,23 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
     let pol = dir.path().join("pol");
     tiny_policy(from, pol.to_str().unwrap());
     let ev = dir.path().join("ev");
-    ok(&[
-        "eval",
-        "--from",
+    eval_quiet(
         from,
-        "--policy",
-        pol.to_str().unwrap(),
-        "--out",
-        ev.to_str().unwrap(),
-        "-q",
-        "--record",
-        "2",
-        "--set",
-        "eval.trials=3",
-        "--set",
-        "eval.envs=3",
-        "--set",
-        "eval.steps=12",
-        "--set",
-        "eval.metrics=[\"sr\", \"nr\"]",
-    ]);
+        &pol,
+        &ev,
+        &[
+            "--record",
+            "2",
+            "--set",
+            "eval.trials=3",
+            "--set",
+            "eval.envs=3",
+            "--set",
+            "eval.steps=12",
+            "--set",
+            "eval.metrics=[\"sr\", \"nr\"]",
+        ],
+    );
     let steps = skillaug::table::rollout::read(&ev.join("eval_rollouts.parquet")).unwrap();
     for (metric, trial) in [("sr", 0), ("sr", 1), ("nr", 0), ("nr", 1)] {
         let st: Vec<_> = steps
@@ -412,22 +409,19 @@ fn plot_draws_every_table_kind() {
     let pol = dir.path().join("pol");
     tiny_policy(from, pol.to_str().unwrap());
     let ev = dir.path().join("ev");
-    ok(&[
-        "eval",
-        "--from",
+    eval_quiet(
         from,
-        "--policy",
-        pol.to_str().unwrap(),
-        "--out",
-        ev.to_str().unwrap(),
-        "-q",
-        "--set",
-        "eval.trials=2",
-        "--set",
-        "eval.envs=2",
-        "--set",
-        "eval.steps=5",
-    ]);
+        &pol,
+        &ev,
+        &[
+            "--set",
+            "eval.trials=2",
+            "--set",
+            "eval.envs=2",
+            "--set",
+            "eval.steps=5",
+        ],
+    );
     let png_of = |name: &str, args: &[&str]| -> Vec<u8> {
         let out = dir.path().join(format!("{name}.png"));
         let mut a = vec!["plot"];

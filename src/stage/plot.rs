@@ -125,35 +125,10 @@ pub fn n_histogram(path: &Path) -> Result<Vec<(u32, u32)>> {
 type Cell = (String, String, f64, Option<(f64, f64)>);
 
 fn eval_cells(path: &Path) -> Result<Vec<Cell>> {
-    let df = crate::table::io::read_frame(path)?;
-    for c in [
-        "label",
-        "metric",
-        "from_skill",
-        "to_skill",
-        "value",
-        "ci_low",
-        "ci_high",
-    ] {
-        if df.column(c).is_err() {
-            bail!(
-                "{}: no column `{c}`: not an eval_summary table",
-                path.display()
-            );
-        }
-    }
-    let s = |c: &str| -> Result<Vec<String>> {
-        let col = df.column(c)?.str()?.clone();
-        Ok((0..col.len())
-            .map(|i| col.get(i).unwrap_or_default().to_string())
-            .collect())
-    };
-    let f = |c: &str| -> Result<Vec<f64>> {
-        let col = df.column(c)?.f64()?.clone();
-        Ok((0..col.len())
-            .map(|i| col.get(i).unwrap_or(f64::NAN))
-            .collect())
-    };
+    use crate::table::eval::{frame_f64s, frame_strs, summary_frame};
+    let df = summary_frame(path)?;
+    let s = |c: &str| frame_strs(&df, c);
+    let f = |c: &str| frame_f64s(&df, c);
     let (label, metric) = (s("label")?, s("metric")?);
     let (from, to) = (s("from_skill")?, s("to_skill")?);
     let (v, lo, hi) = (f("value")?, f("ci_low")?, f("ci_high")?);

@@ -301,26 +301,14 @@ pub struct MethodRow {
 
 /// The rows of one summary file (polars), one per label.
 pub fn load(path: &Path) -> Result<Vec<MethodRow>> {
-    let df = crate::table::io::read_frame(path)?;
-    for c in ["label", "metric", "from_skill", "to_skill", "value"] {
-        if df.column(c).is_err() {
-            bail!(
-                "{}: no column `{c}`: not an eval_summary table",
-                path.display()
-            );
-        }
-    }
-    let s = |c: &str| -> Result<Vec<String>> {
-        let col = df.column(c)?.str()?.clone();
-        Ok((0..col.len())
-            .map(|i| col.get(i).unwrap_or_default().to_string())
-            .collect())
-    };
+    use crate::table::eval::{frame_f64s, frame_strs, summary_frame};
+    let df = summary_frame(path)?;
+    let s = |c: &str| frame_strs(&df, c);
     let (label, metric, from, to) = (s("label")?, s("metric")?, s("from_skill")?, s("to_skill")?);
-    let vc = df.column("value")?.f64()?.clone();
+    let values = frame_f64s(&df, "value")?;
     let mut rows: Vec<MethodRow> = Vec::new();
     for i in 0..df.height() {
-        let v = vc.get(i).unwrap_or(f64::NAN);
+        let v = values[i];
         let r = match rows.iter_mut().position(|r| r.label == label[i]) {
             Some(k) => &mut rows[k],
             None => {

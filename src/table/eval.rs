@@ -282,3 +282,34 @@ pub fn render(rows: &[SummaryRow]) -> String {
     }
     s
 }
+
+/// An `eval_summary` file as a polars frame, its columns checked.
+pub fn summary_frame(path: &std::path::Path) -> Result<DataFrame> {
+    let df = super::io::read_frame(path)?;
+    for c in summary_columns() {
+        if df.column(c.name).is_err() {
+            anyhow::bail!(
+                "{}: no column `{}`: not an eval_summary table",
+                path.display(),
+                c.name
+            );
+        }
+    }
+    Ok(df)
+}
+
+/// A string column of a frame (nulls as "").
+pub fn frame_strs(df: &DataFrame, name: &str) -> Result<Vec<String>> {
+    let col = df.column(name)?.str()?.clone();
+    Ok((0..col.len())
+        .map(|i| col.get(i).unwrap_or_default().to_string())
+        .collect())
+}
+
+/// A Float64 column of a frame (nulls as NaN).
+pub fn frame_f64s(df: &DataFrame, name: &str) -> Result<Vec<f64>> {
+    let col = df.column(name)?.f64()?.clone();
+    Ok((0..col.len())
+        .map(|i| col.get(i).unwrap_or(f64::NAN))
+        .collect())
+}

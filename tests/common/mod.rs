@@ -79,6 +79,23 @@ pub fn tiny_encoder(out: &str, steps: u32) {
     ]);
 }
 
+/// `skillaug eval` of `policy` on run folder `from` into `out`, quiet,
+/// with `extra` flags; returns stdout.
+pub fn eval_quiet(from: &str, policy: &Path, out: &Path, extra: &[&str]) -> String {
+    let mut a = vec![
+        "eval",
+        "--from",
+        from,
+        "--policy",
+        policy.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ];
+    a.extend_from_slice(extra);
+    ok(&a)
+}
+
 /// Run and require success, returning stdout.
 pub fn ok(args: &[&str]) -> String {
     let o = skillaug(args);
