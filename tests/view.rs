@@ -360,38 +360,21 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
 fn view_refuses_unknown_clips_and_leaves_no_page() {
     let (dir, run) = ingested("ballplay");
     let page = dir.path().join("p.html");
-    let err = fails(&[
-        "view",
-        "--from",
-        run.to_str().unwrap(),
-        "--clip",
-        "no_such_clip",
-        "--out",
-        page.to_str().unwrap(),
-    ]);
+    let from = run.to_str().unwrap();
+    let refused = |extra: &[&str]| -> String {
+        let mut a = vec!["view", "--from", from, "--out", page.to_str().unwrap()];
+        a.extend_from_slice(extra);
+        fails(&a)
+    };
+    let err = refused(&["--clip", "no_such_clip"]);
     assert!(err.contains("no clip `no_such_clip`"), "{err}");
-    let err = fails(&[
-        "view",
-        "--from",
-        run.to_str().unwrap(),
-        "--skill",
-        "juggle",
-        "--out",
-        page.to_str().unwrap(),
-    ]);
+    let err = refused(&["--skill", "juggle"]);
     assert!(
         err.contains("no clip of skill `juggle`") && err.contains("run"),
         "{err}"
     );
-    let err = fails(&[
-        "view",
-        "--from",
-        run.to_str().unwrap(),
-        "--rollouts",
-        run.join("clips.parquet").to_str().unwrap(),
-        "--out",
-        page.to_str().unwrap(),
-    ]);
+    let clips = run.join("clips.parquet");
+    let err = refused(&["--rollouts", clips.to_str().unwrap()]);
     assert!(
         err.contains("is a `clips` table, expected `eval_rollouts`"),
         "{err}"
