@@ -302,6 +302,8 @@
   const speedSel = document.getElementById("speed"), scrub = document.getElementById("scrub");
   const frameEl = document.getElementById("frame"), labels = document.getElementById("labels");
   const skillEl = document.getElementById("skill"), followEl = document.getElementById("follow");
+  const overlayEl = document.getElementById("overlay");
+  overlayEl.addEventListener("change", () => layout());
   scene.items.forEach((it, k) => {
     const o = document.createElement("option");
     o.value = String(k);
@@ -330,11 +332,14 @@
     H = Math.max(1, Math.floor(canvas.clientHeight * dpr));
     canvas.width = W;
     canvas.height = H;
-    const n = Math.max(1, actors.length);
-    actors.forEach((x, i) => {
+    const groups = viewGroups();
+    groups.forEach((g, v) => g.forEach((i, k) => {
       const d = document.getElementById("label" + i);
-      if (d) d.style.left = (8 + (i * canvas.clientWidth) / n) + "px";
-    });
+      if (d) {
+        d.style.left = (8 + (v * canvas.clientWidth) / groups.length) + "px";
+        d.style.top = (8 + 44 * k) + "px";
+      }
+    }));
     // resizing clears the drawing buffer: draw again at once, so that no
     // frame (or screenshot) shows an empty canvas
     if (item) render();
@@ -342,7 +347,7 @@
   window.addEventListener("resize", layout);
 
   // ---------- drawing ----------
-  function drawActor(x, f, shadow) {
+  function drawActor(x, f, shadow, alpha) {
     const fi = frameOf(x, f);
     const masked = x.a.masked[fi] === 1;
     const color = masked ? MASKED_COLOR : ACTOR_COLORS[actors.indexOf(x) % ACTOR_COLORS.length];
@@ -353,7 +358,7 @@
       const bq = [x.body[o + 3], x.body[o + 4], x.body[o + 5], x.body[o + 6]];
       for (const g of geoms[b]) {
         const p = qrot(bq, g.pos);
-        draw(g.mesh, [bt[0] + p[0], bt[1] + p[1], bt[2] + p[2]], qmul(bq, g.quat), color, 1, shadow);
+        draw(g.mesh, [bt[0] + p[0], bt[1] + p[1], bt[2] + p[2]], qmul(bq, g.quat), color, alpha, shadow);
       }
     }
     const oo = fi * NO * 7;
@@ -362,12 +367,20 @@
     for (let k = 0; k < NO; k++) {
       const o = oo + k * 7;
       draw(itemObjects[k], [x.obj[o], x.obj[o + 1], x.obj[o + 2]],
-        [x.obj[o + 3], x.obj[o + 4], x.obj[o + 5], x.obj[o + 6]], OBJ_COLOR, 1, shadow);
+        [x.obj[o + 3], x.obj[o + 4], x.obj[o + 5], x.obj[o + 6]], OBJ_COLOR, alpha, shadow);
     }
     if (culled) gl.enable(gl.CULL_FACE);
   }
+  // the figures of each view: one each side by side, or all in one view
+  // (the first solid, the others as ghosts) with "overlay"
+  function viewGroups() {
+    if (!actors.length) return [[]];
+    if (overlayEl.checked) return [actors.map((x, i) => i)];
+    return actors.map((x, i) => [i]);
+  }
   function render() {
-    const n = Math.max(1, actors.length);
+    const groups = viewGroups();
+    const n = groups.length;
     const f = state.frame;
     gl.enable(gl.SCISSOR_TEST);
     gl.enable(gl.DEPTH_TEST);
@@ -381,7 +394,8 @@
       gl.clearColor(0.13, 0.14, 0.16, 1);
       gl.clearStencil(0);
       gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT | gl.STENCIL_BUFFER_BIT);
-      const x = actors[i];
+      const members = groups[i].map((k) => actors[k]);
+      const x = members[0];
       const r = x && followEl.checked ? rootOf(x, f) : [0, 0, 0.9];
       const at = [r[0] + cam.pan[0], r[1] + cam.pan[1], 0.9 + cam.pan[2]];
       const ce = Math.cos(cam.el);
@@ -395,8 +409,6 @@
       gl.enable(gl.CULL_FACE);
       gl.uniform1f(loc.uGround, 0);
       if (!x) continue;
-      // shadows first: flattened onto the ground, each pixel darkened once
-      // (later shadow fragments at the same depth fail the depth test)
       // shadows: flattened onto the ground over it (no depth test, no
       // culling: flattened triangles face either way), each pixel darkened
       // once through the stencil
@@ -405,20 +417,25 @@
       gl.enable(gl.STENCIL_TEST);
       gl.stencilFunc(gl.EQUAL, 0, 0xff);
       gl.stencilOp(gl.KEEP, gl.KEEP, gl.INCR);
-      drawActor(x, f, true);
+      for (const m of members) drawActor(m, f, true, 1);
       gl.disable(gl.STENCIL_TEST);
       gl.enable(gl.CULL_FACE);
       gl.enable(gl.DEPTH_TEST);
-      drawActor(x, f, false);
-      const d = document.getElementById("label" + i);
-      if (d) {
-        const fi = frameOf(x, f);
-        const masked = x.a.masked[fi] === 1;
-        let t = x.a.name + (f >= x.a.frames ? " (ended)" : "") + (masked ? "  masked" : "");
-        if (x.value.length > fi && !Number.isNaN(x.value[fi])) t += "\n" + x.a.value_name + " " + x.value[fi].toFixed(3);
+      drawActor(x, f, false, 1);
+      // ghosts after the solid figure, without writing depth
+      gl.depthMask(false);
+      for (const m of members.slice(1)) drawActor(m, f, false, 0.38);
+      gl.depthMask(true);
+      members.forEach((m, k) => {
+        const d = document.getElementById("label" + groups[i][k]);
+        if (!d) return;
+        const fi = frameOf(m, f);
+        const masked = m.a.masked[fi] === 1;
+        let t = m.a.name + (k > 0 ? " (ghost)" : "") + (f >= m.a.frames ? " (ended)" : "") + (masked ? "  masked" : "");
+        if (m.value.length > fi && !Number.isNaN(m.value[fi])) t += "\n" + m.a.value_name + " " + m.value[fi].toFixed(3);
         d.textContent = t;
         d.className = masked ? "label masked" : "label";
-      }
+      });
     }
     gl.disable(gl.SCISSOR_TEST);
     frameEl.textContent = "frame " + f + " / " + (length - 1) + "  " + (f / item.fps).toFixed(2) + " s";
@@ -454,6 +471,7 @@
     itemSel.value = String(k);
     selectItem(k);
     if (hash.has("frame")) setFrame(Number(hash.get("frame")) || 0);
+    if (hash.has("overlay")) { overlayEl.checked = true; layout(); }
     if (hash.has("paused")) playBtn.click();
   }
   tick();

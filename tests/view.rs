@@ -317,6 +317,17 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
             assert!(element(&dom, "label1").starts_with("reference"), "{what}");
         }
     }
+    let dom = browse(
+        &chrome,
+        &profile,
+        &format!("{url}#item=2&overlay"),
+        &["--dump-dom"],
+    );
+    assert!(element(&dom, "errors").trim().is_empty());
+    assert!(
+        element(&dom, "label1").starts_with("reference (ghost)"),
+        "overlay"
+    );
     let shot = dir.path().join("shot.png");
     browse(
         &chrome,
