@@ -217,7 +217,7 @@ impl Evaluator<'_> {
                     sums[e].0 += sm;
                     sums[e].1 += 1;
                 }
-                if let Some(rec) = &env.recorded()[e] {
+                if let Some(rec) = env.recorded().get(e).and_then(Option::as_ref) {
                     running[e].push(RolloutStep {
                         metric: cell.metric.to_string(),
                         from: cell.from.clone(),
@@ -232,7 +232,7 @@ impl Evaluator<'_> {
                 }
                 if r.terminated[e] || r.truncated[e] {
                     let trial = rows.len() as u32;
-                    let steps = std::mem::take(&mut running[e]);
+                    let steps = running.get_mut(e).map(std::mem::take).unwrap_or_default();
                     if (trial as usize) < cfg.record {
                         recorded.extend(steps.into_iter().map(|s| RolloutStep { trial, ..s }));
                     }
@@ -258,6 +258,12 @@ impl Evaluator<'_> {
                         active[e] = false;
                     }
                 }
+            }
+            // trial numbers follow the finishing order: once `record`
+            // trials have finished, no running trial will be kept
+            if cfg.record > 0 && rows.len() >= cfg.record && !running.is_empty() {
+                env.set_recording(false);
+                running = Vec::new();
             }
         }
         Ok((rows, recorded))
