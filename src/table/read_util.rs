@@ -59,3 +59,48 @@ pub fn f32_row(a: &ArrayRef, i: usize) -> Option<Vec<f32>> {
     };
     Some(v.as_primitive::<Float32Type>().values().to_vec())
 }
+
+/// A UInt32 column with its nulls.
+pub fn opt_u32s(b: &RecordBatch, name: &str, path: &Path) -> Result<Vec<Option<u32>>> {
+    let a = col(b, name, path)?
+        .as_primitive_opt::<arrow::datatypes::UInt32Type>()
+        .ok_or_else(|| anyhow!("{}: column `{name}` is not UInt32", path.display()))?;
+    Ok((0..a.len())
+        .map(|i| a.is_valid(i).then(|| a.value(i)))
+        .collect())
+}
+
+/// A Boolean column (nulls as false).
+pub fn bools(b: &RecordBatch, name: &str, path: &Path) -> Result<Vec<bool>> {
+    let a = col(b, name, path)?
+        .as_boolean_opt()
+        .ok_or_else(|| anyhow!("{}: column `{name}` is not Boolean", path.display()))?;
+    Ok((0..a.len()).map(|i| a.is_valid(i) && a.value(i)).collect())
+}
+
+/// The posture columns (`root_pos`, `root_rot`, `joint_rot`, `obj_pos`,
+/// `obj_rot`) of row `i`; `None` where `root_pos` is null.
+pub fn posture_row(
+    b: &RecordBatch,
+    path: &Path,
+    i: usize,
+) -> Result<Option<crate::motion::state::Posture>> {
+    let row = |name: &str| -> Result<Option<Vec<f32>>> { Ok(f32_row(col(b, name, path)?, i)) };
+    let Some(root_pos) = row("root_pos")? else {
+        return Ok(None);
+    };
+    let bad = |what: &str| {
+        anyhow!(
+            "{}: row {i}: `{what}` is null or of the wrong length",
+            path.display()
+        )
+    };
+    let need = |name: &str| row(name)?.ok_or_else(|| bad(name));
+    Ok(Some(crate::motion::state::Posture {
+        root_pos: root_pos.try_into().map_err(|_| bad("root_pos"))?,
+        root_rot: need("root_rot")?.try_into().map_err(|_| bad("root_rot"))?,
+        joint_rot: need("joint_rot")?,
+        obj_pos: need("obj_pos")?,
+        obj_rot: need("obj_rot")?,
+    }))
+}

@@ -5,14 +5,14 @@
 //! reference.
 
 use super::columns::F32Rows;
-use super::read_util::{check_table, col, f32_row, strs};
+use super::read_util::{bools, check_table, col, opt_u32s, posture_row, strs};
 use super::{f32_fixed, f32_list, schema_of, ColumnSpec};
 use crate::motion::state::Posture;
 use anyhow::{anyhow, Result};
 use arrow::array::{
     Array, ArrayRef, AsArray, BooleanArray, Float64Array, StringArray, UInt32Array,
 };
-use arrow::datatypes::{DataType, Float64Type, UInt32Type};
+use arrow::datatypes::{DataType, Float64Type};
 use arrow::record_batch::RecordBatch;
 use std::path::Path;
 use std::sync::Arc;
@@ -115,40 +115,20 @@ pub fn read(path: &Path) -> Result<Vec<RolloutStep>> {
     check_table(&t, path, "eval_rollouts")?;
     let mut out = Vec::with_capacity(t.rows());
     for b in &t.batches {
-        let u32s = |name: &str| -> Result<Vec<Option<u32>>> {
-            let a = col(b, name, path)?
-                .as_primitive_opt::<UInt32Type>()
-                .ok_or_else(|| anyhow!("{}: column `{name}` is not UInt32", path.display()))?;
-            Ok((0..a.len())
-                .map(|i| a.is_valid(i).then(|| a.value(i)))
-                .collect())
-        };
-        let need = |v: Option<Vec<f32>>, name: &str, i: usize| {
-            v.ok_or_else(|| anyhow!("{}: row {i}: `{name}` is null", path.display()))
-        };
         let (metric, from, to) = (
             strs(b, "metric", path)?,
             strs(b, "from_skill", path)?,
             strs(b, "to_skill", path)?,
         );
-        let (trial, step) = (u32s("trial")?, u32s("step")?);
-        let (rc, rf) = (u32s("ref_clip")?, u32s("ref_frame")?);
-        let masked = col(b, "masked", path)?
-            .as_boolean_opt()
-            .ok_or_else(|| anyhow!("{}: column `masked` is not Boolean", path.display()))?
-            .clone();
+        let u = |name: &str| opt_u32s(b, name, path);
+        let (trial, step, rc, rf) = (u("trial")?, u("step")?, u("ref_clip")?, u("ref_frame")?);
+        let masked = bools(b, "masked", path)?;
         let sm = col(b, "sm_reward", path)?
             .as_primitive_opt::<Float64Type>()
             .ok_or_else(|| anyhow!("{}: column `sm_reward` is not Float64", path.display()))?
             .clone();
-        let cols: Vec<&ArrayRef> = ["root_pos", "root_rot", "joint_rot", "obj_pos", "obj_rot"]
-            .iter()
-            .map(|n| col(b, n, path))
-            .collect::<Result<_>>()?;
         for i in 0..b.num_rows() {
-            let rp = need(f32_row(cols[0], i), "root_pos", i)?;
-            let rr = need(f32_row(cols[1], i), "root_rot", i)?;
-            let bad = |n: &str| anyhow!("{}: row {i}: `{n}` has the wrong length", path.display());
+            let bad = |n: &str| anyhow!("{}: row {i}: `{n}` is null", path.display());
             out.push(RolloutStep {
                 metric: metric[i].clone(),
                 from: from[i].clone(),
@@ -156,15 +136,9 @@ pub fn read(path: &Path) -> Result<Vec<RolloutStep>> {
                 trial: trial[i].ok_or_else(|| bad("trial"))?,
                 step: step[i].ok_or_else(|| bad("step"))?,
                 reference: rc[i].zip(rf[i]),
-                masked: masked.value(i),
+                masked: masked[i],
                 sm_reward: sm.is_valid(i).then(|| sm.value(i)),
-                posture: Posture {
-                    root_pos: rp.try_into().map_err(|_| bad("root_pos"))?,
-                    root_rot: rr.try_into().map_err(|_| bad("root_rot"))?,
-                    joint_rot: need(f32_row(cols[2], i), "joint_rot", i)?,
-                    obj_pos: need(f32_row(cols[3], i), "obj_pos", i)?,
-                    obj_rot: need(f32_row(cols[4], i), "obj_rot", i)?,
-                },
+                posture: posture_row(b, path, i)?.ok_or_else(|| bad("root_pos"))?,
             });
         }
     }

@@ -235,66 +235,42 @@ pub struct SampledTrajectory {
 /// Read the trajectories of an `stf_samples` table (rows grouped by
 /// `traj_id`, step 0 first, as `sample-stf` writes them).
 pub fn read_trajectories(path: &Path) -> Result<Vec<SampledTrajectory>> {
-    use super::read_util::{check_table, f32_row, strs};
+    use super::read_util::{bools, check_table, opt_u32s, posture_row, strs};
     let t = super::io::read_parquet(path)?;
     check_table(&t, path, "stf_samples")?;
     let mut out: Vec<SampledTrajectory> = Vec::new();
     for b in &t.batches {
-        let u32s = |name: &str| -> Result<Vec<Option<u32>>> {
-            let a = col(b, name, path)?
-                .as_primitive_opt::<UInt32Type>()
-                .ok_or_else(|| anyhow!("{}: column `{name}` is not UInt32", path.display()))?;
-            Ok((0..a.len())
-                .map(|i| a.is_valid(i).then(|| a.value(i)))
-                .collect())
-        };
+        let u = |name: &str| opt_u32s(b, name, path);
         let (id, step, rc, rf, nm) = (
-            u32s("traj_id")?,
-            u32s("step")?,
-            u32s("ref_clip")?,
-            u32s("ref_frame")?,
-            u32s("n_masked")?,
+            u("traj_id")?,
+            u("step")?,
+            u("ref_clip")?,
+            u("ref_frame")?,
+            u("n_masked")?,
         );
-        let masked = col(b, "masked", path)?
-            .as_boolean_opt()
-            .ok_or_else(|| anyhow!("{}: column `masked` is not Boolean", path.display()))?
-            .clone();
+        let masked = bools(b, "masked", path)?;
         let beta = col(b, "beta", path)?
             .as_primitive_opt::<Float64Type>()
             .ok_or_else(|| anyhow!("{}: column `beta` is not Float64", path.display()))?
             .clone();
         let (skill, kind) = (strs(b, "target_skill", path)?, strs(b, "start_kind", path)?);
-        let cols: Vec<&ArrayRef> = ["root_pos", "root_rot", "joint_rot", "obj_pos", "obj_rot"]
-            .iter()
-            .map(|n| col(b, n, path))
-            .collect::<Result<_>>()?;
         for i in 0..b.num_rows() {
             let bad = |what: &str| anyhow!("{}: row {i}: {what}", path.display());
             let tid = id[i].ok_or_else(|| bad("null traj_id"))?;
             if step[i] == Some(0) {
-                let row = |k: usize| {
-                    f32_row(cols[k], i).ok_or_else(|| bad("step 0 without its start state"))
-                };
                 out.push(SampledTrajectory {
                     traj_id: tid,
                     target_skill: skill[i].clone(),
                     start_kind: kind[i].clone(),
                     beta: beta.value(i),
                     n_masked: nm[i].unwrap_or(0),
-                    start: crate::motion::state::Posture {
-                        root_pos: row(0)?.try_into().map_err(|_| bad("root_pos length"))?,
-                        root_rot: row(1)?.try_into().map_err(|_| bad("root_rot length"))?,
-                        joint_rot: row(2)?,
-                        obj_pos: row(3)?,
-                        obj_rot: row(4)?,
-                    },
+                    start: posture_row(b, path, i)?
+                        .ok_or_else(|| bad("step 0 without its start state"))?,
                     steps: Vec::new(),
                 });
             } else {
                 match out.last_mut() {
-                    Some(t) if t.traj_id == tid => {
-                        t.steps.push((masked.value(i), rc[i].zip(rf[i])))
-                    }
+                    Some(t) if t.traj_id == tid => t.steps.push((masked[i], rc[i].zip(rf[i]))),
                     _ => return Err(bad("a step before its trajectory's step 0")),
                 }
             }
