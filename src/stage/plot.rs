@@ -60,11 +60,6 @@ pub fn curve_of(path: &Path, x: &str, metric: &str) -> Result<Vec<(f64, f64)>> {
     Ok(v)
 }
 
-/// (samples, value) of `metric` in a train_metrics file.
-pub fn curve(path: &Path, metric: &str) -> Result<Vec<(f64, f64)>> {
-    curve_of(path, "samples", metric)
-}
-
 /// Moving average over `k` points (k <= 1: unchanged).
 fn smooth(v: &[(f64, f64)], k: usize) -> Vec<(f64, f64)> {
     if k <= 1 {
