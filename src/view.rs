@@ -373,7 +373,7 @@ pub fn html(scene: &Scene) -> Result<String> {
         .replace("__SCENE__", &json))
 }
 
-/// Write the page to `path` (temporary file, then rename).
+/// Write the page to `path` (staged in a temporary file, then renamed).
 pub fn write(scene: &Scene, path: &Path) -> Result<()> {
     if scene.items.is_empty() {
         bail!("nothing to show: the page would have no item");
@@ -388,24 +388,21 @@ pub fn write(scene: &Scene, path: &Path) -> Result<()> {
         }
     }
     let text = html(scene)?;
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let mut tmp = tempfile::NamedTempFile::new_in(dir)
-        .with_context(|| format!("cannot write in {}", dir.display()))?;
-    std::io::Write::write_all(&mut tmp, text.as_bytes())?;
-    #[cfg(unix)]
-    {
-        // a page is for reading (and serving): not the temporary file's 0600
-        use std::os::unix::fs::PermissionsExt;
-        tmp.as_file()
-            .set_permissions(std::fs::Permissions::from_mode(0o644))?;
+    if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    tmp.persist(path)
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(())
+    let mut staged = crate::table::io::Staged::new();
+    staged.with_path(path, |tmp| {
+        std::fs::write(tmp, text.as_bytes())?;
+        #[cfg(unix)]
+        {
+            // a page is for reading (and serving): not the temporary file's 0600
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(tmp, std::fs::Permissions::from_mode(0o644))?;
+        }
+        Ok(())
+    })?;
+    staged.commit()
 }
 
 #[cfg(test)]
