@@ -117,7 +117,9 @@ pub fn run(req: &ViewRequest) -> Result<usize> {
     if clips.is_empty() && req.stf.is_none() && req.rollouts.is_none() {
         clips = (0..lib.clips.len()).collect();
     }
-    clips.dedup();
+    // each clip once, in the order asked (a --clip may also be in a --skill)
+    let mut seen = std::collections::HashSet::new();
+    clips.retain(|c| seen.insert(*c));
     for c in clips {
         let row = &lib.clips[c];
         let fr = &lib.frames[c];
