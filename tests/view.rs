@@ -8,8 +8,18 @@ use common::*;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn tiny_policy(from: &str, out: &str) {
-    let mut a = vec!["train", "--from", from, "--out", out, "-q"];
+/// A tiny DF policy trained on run folder `from` into `dir/pol`, then
+/// evaluated into `dir/ev` with `eval` flags; returns (pol, ev).
+fn policy_and_eval(dir: &Path, from: &str, eval: &[&str]) -> (PathBuf, PathBuf) {
+    let (pol, ev) = (dir.join("pol"), dir.join("ev"));
+    let mut a = vec![
+        "train",
+        "--from",
+        from,
+        "--out",
+        pol.to_str().unwrap(),
+        "-q",
+    ];
     a.extend_from_slice(TINY_TRAIN);
     a.extend_from_slice(&[
         "--set",
@@ -18,6 +28,8 @@ fn tiny_policy(from: &str, out: &str) {
         "train.skills=[\"run\"]",
     ]);
     ok(&a);
+    eval_quiet(from, &pol, &ev, eval);
+    (pol, ev)
 }
 
 /// The page's scene JSON.
@@ -155,13 +167,9 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
         .expect("a trajectory with masked states");
 
     // a tiny policy, evaluated with two recorded trials per cell
-    let pol = dir.path().join("pol");
-    tiny_policy(from, pol.to_str().unwrap());
-    let ev = dir.path().join("ev");
-    eval_quiet(
+    let (_, ev) = policy_and_eval(
+        dir.path(),
         from,
-        &pol,
-        &ev,
         &[
             "--record",
             "2",
@@ -255,6 +263,8 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
         }
     }
     let err = (err / nb as f64).sqrt();
+    // measured 3.8 cm (mean 3.4 cm) on frame 0 of clip 0; the issue allows a
+    // mean of 5 cm on BallPlay
     assert!(err < 0.06, "rms body position error of frame 0: {err} m");
     assert_eq!(&body[..3], &frames.root_pos[..3]);
 
@@ -400,13 +410,9 @@ fn plot_draws_every_table_kind() {
     let from = run.to_str().unwrap();
     ok(&["build-stg", "--out", from, "-q"]);
     tiny_encoder(from, 6);
-    let pol = dir.path().join("pol");
-    tiny_policy(from, pol.to_str().unwrap());
-    let ev = dir.path().join("ev");
-    eval_quiet(
+    let (pol, ev) = policy_and_eval(
+        dir.path(),
         from,
-        &pol,
-        &ev,
         &[
             "--set",
             "eval.trials=2",
