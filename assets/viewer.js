@@ -3,7 +3,7 @@
 "use strict";
 (function () {
   const errorsEl = document.getElementById("errors");
-  const state = { frame: 0, ticks: 0, errors: [] };
+  const state = { frame: 0, played: 0, ticks: 0, errors: [] };
   window.skillaugViewer = state;
   function fail(msg) {
     state.errors.push(String(msg));
@@ -450,7 +450,14 @@
       if (playing && item) {
         clock += dt * item.fps * Number(speedSel.value);
         if (clock >= length) clock = 0;
-        state.frame = Math.floor(clock);
+        const f = Math.floor(clock);
+        if (f !== state.frame) {
+          // frames advanced by playback, counted across loops (the counter
+          // element carries it as data-played, for checks)
+          state.played++;
+          frameEl.dataset.played = String(state.played);
+        }
+        state.frame = f;
         scrub.value = String(state.frame);
       }
       const dpr = window.devicePixelRatio || 1;

@@ -124,6 +124,15 @@ fn browse(chrome: &Path, profile: &Path, url: &str, args: &[&str]) -> String {
     std::fs::read_to_string(&out_path).unwrap()
 }
 
+/// Attribute `name` of the element with `id` in a DOM dump.
+fn attribute(dom: &str, id: &str, name: &str) -> Option<String> {
+    let i = dom.find(&format!("id=\"{id}\""))?;
+    let tag = &dom[i..i + dom[i..].find('>')?];
+    let key = format!("{name}=\"");
+    let a = tag.find(&key)? + key.len();
+    Some(tag[a..a + tag[a..].find('"')?].to_string())
+}
+
 /// Text of the element with `id` in a DOM dump.
 fn element(dom: &str, id: &str) -> String {
     let key = format!("id=\"{id}\"");
@@ -318,9 +327,14 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
             .nth(1)
             .and_then(|v| v.parse().ok())
             .unwrap_or_else(|| panic!("{what}: frame counter `{counter}`"));
+        // playback loops (a 6-step trial wraps many times in 2 s), so the
+        // advance is read from the count of frames played
+        let played: usize = attribute(&dom, "frame", "data-played")
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0);
         assert!(
-            n > 0,
-            "{what}: the frame counter did not advance: `{counter}`"
+            played > 0,
+            "{what}: the frame counter did not advance: `{counter}` (frame {n}), {played} frames played"
         );
         if what == "rollout" {
             assert!(element(&dom, "label0").starts_with("rollout"), "{what}");
