@@ -113,6 +113,10 @@ pub struct BenchArgs {
     /// Folder holding the releases.
     #[arg(long, value_name = "DIR", env = "SKILLAUG_DATA")]
     pub data_root: Option<PathBuf>,
+    /// Physics setting for `bench sim`: --set sim.key=value (repeatable;
+    /// keys of the `[sim]` table, e.g. sim.pgs_iterations=2).
+    #[arg(long, value_name = "sim.KEY=VALUE")]
+    pub set: Vec<String>,
 }
 
 /// `skillaug build-stg`.

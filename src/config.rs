@@ -81,6 +81,13 @@ pub struct SetArg {
 impl std::str::FromStr for SetArg {
     type Err = anyhow::Error;
     fn from_str(raw: &str) -> Result<SetArg> {
+        SetArg::parse_for(raw, STAGES)
+    }
+}
+
+impl SetArg {
+    /// Parse `raw`, whose first key must be one of `known`.
+    pub fn parse_for(raw: &str, known: &[&str]) -> Result<SetArg> {
         let (key, value) = raw
             .split_once('=')
             .ok_or_else(|| anyhow!("--set {raw}: expected STAGE.KEY=VALUE"))?;
@@ -88,11 +95,11 @@ impl std::str::FromStr for SetArg {
         if path.len() < 2 || path.iter().any(|p| p.is_empty()) {
             bail!("--set {raw}: the key must be STAGE.KEY, e.g. ingest.fps=60");
         }
-        if !STAGES.contains(&path[0].as_str()) {
+        if !known.contains(&path[0].as_str()) {
             bail!(
                 "--set {raw}: unknown stage `{}` (known: {})",
                 path[0],
-                STAGES.join(", ")
+                known.join(", ")
             );
         }
         let value = format!("v = {}", value.trim())

@@ -95,6 +95,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::CheckFk(a) => stage::check_fk::run(&stage::Common::new(a)?),
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => stage::schema::run(&a.name),
-        Command::Bench(a) => stage::bench::run(&a.name, a.repeat, a.data_root),
+        Command::Bench(a) => stage::bench::run(&a.name, a.repeat, a.data_root, &a.set),
     }
 }

@@ -2,6 +2,7 @@
 //! ([`world`]), its objects ([`objects`]) and a vectorised environment of
 //! independent worlds stepped in parallel ([`vec_env`]).
 
+pub mod checks;
 pub mod mjcf;
 pub mod objects;
 pub mod rot;

@@ -20,6 +20,11 @@
 //! noise, reset every 60 policy steps (a training episode) and whenever the
 //! root drops below 0.5 m (early termination), so contacts are those of
 //! training rather than of a humanoid lying on the ground or standing still.
+//! Beside the speed it prints what the settings cost in accuracy
+//! ([`crate::sim::checks`]): the PD tracking error with the root held, and,
+//! under full-range random actions, the largest speed, the deepest ground
+//! penetration and the joint anchor gap. `--set sim.KEY=VALUE` benches other
+//! physics settings (the `[sim]` keys of a training recipe).
 
 use crate::cli::StageArgs;
 use crate::motion::state::State;
@@ -34,10 +39,18 @@ use std::time::Instant;
 const DATASETS: [&str; 4] = ["ballplay", "ballplay-m", "locomotion", "parahome"];
 
 /// Run benchmark `what`.
-pub fn run(what: &str, repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
+pub fn run(what: &str, repeat: usize, data_root: Option<PathBuf>, sets: &[String]) -> Result<()> {
+    let sets = sets
+        .iter()
+        .map(|s| crate::config::SetArg::parse_for(s, &["sim"]))
+        .collect::<Result<Vec<_>>>()?;
+    if what != "sim" && !sets.is_empty() {
+        bail!("only `bench sim` takes --set (sim.* keys)");
+    }
+    let opts: SimOptions = crate::config::resolve(&crate::config::Recipe::default(), "sim", &sets)?;
     match what {
         "ingest" => ingest(repeat.max(1), data_root),
-        "sim" => sim(repeat.max(1), data_root),
+        "sim" => sim(repeat.max(1), data_root, &opts),
         "train" => train(repeat.max(1), data_root),
         other => bail!("unknown benchmark `{other}` (known: ingest, sim, train)"),
     }
@@ -118,18 +131,18 @@ fn ingest(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
 /// run on a pool of `threads` threads.
 fn sim_rate(
     model: &Model,
+    opts: &SimOptions,
     start: &State,
     threads: usize,
     worlds: usize,
     policy_steps: usize,
 ) -> Result<f64> {
     use rand::{Rng, SeedableRng};
-    let opts = SimOptions::default();
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()?;
     pool.install(|| -> Result<f64> {
-        let mut env = VecEnv::new(model, &[ObjectSpec::ball()], &opts, worlds)?;
+        let mut env = VecEnv::new(model, &[ObjectSpec::ball()], opts, worlds)?;
         let a = env.action_dim();
         let base: Vec<f32> = start.joint_rot[..a]
             .iter()
@@ -157,7 +170,7 @@ fn sim_rate(
     })
 }
 
-fn sim(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
+fn sim(repeat: usize, data_root: Option<PathBuf>, opts: &SimOptions) -> Result<()> {
     let tmp = tempfile::tempdir()?;
     let out = tmp.path().join("ballplay");
     super::ingest::run(
@@ -201,8 +214,8 @@ fn sim(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
         let mut one = Vec::new();
         let mut all = Vec::new();
         for _ in 0..repeat {
-            one.push(sim_rate(model, &st, 1, worlds, policy_steps)?);
-            all.push(sim_rate(model, &st, threads, worlds, policy_steps)?);
+            one.push(sim_rate(model, opts, &st, 1, worlds, policy_steps)?);
+            all.push(sim_rate(model, opts, &st, threads, worlds, policy_steps)?);
         }
         let (one, all) = (median(one), median(all));
         println!(
@@ -214,6 +227,60 @@ fn sim(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
     }
     println!(
         "physics steps of {worlds} worlds x {policy_steps} policy steps x 2 substeps (120 Hz), ball and contacts on; median of {repeat}"
+    );
+    println!("settings: {}", settings_changed(opts)?);
+    sim_accuracy(&lib, &full, opts)
+}
+
+/// The `[sim]` keys whose values differ from the defaults.
+fn settings_changed(opts: &SimOptions) -> Result<String> {
+    let now = toml::Table::try_from(opts)?;
+    let default = toml::Table::try_from(SimOptions::default())?;
+    let changed: Vec<String> = now
+        .iter()
+        .filter(|(k, v)| default.get(*k) != Some(*v))
+        .map(|(k, v)| format!("sim.{k}={v}"))
+        .collect();
+    Ok(if changed.is_empty() {
+        "the defaults".to_string()
+    } else {
+        changed.join(" ")
+    })
+}
+
+/// What the settings cost in accuracy (`sim::checks`), on the full model:
+/// PD tracking from the zero pose to every clip's middle frame with the
+/// root held, and 16 worlds under full-range random actions for 5 s.
+fn sim_accuracy(lib: &crate::motion::MotionLib, model: &Model, opts: &SimOptions) -> Result<()> {
+    use crate::sim::checks;
+    let mut errors = Vec::new();
+    for c in 0..lib.clips.len() {
+        if let Some(target) = lib.state(c, lib.frames[c].frames / 2) {
+            errors.push(checks::pd_tracking(model, opts, &target)?);
+        }
+    }
+    let mean = errors.iter().sum::<f32>() / errors.len().max(1) as f32;
+    let worst = errors.iter().copied().fold(0f32, f32::max);
+    println!(
+        "PD tracking, root held, 0.5 s: mean joint error {mean:.2} deg over {} clips (worst {worst:.2})",
+        errors.len()
+    );
+    let starts: Vec<State> = (0..16)
+        .filter_map(|i| {
+            let c = i % lib.clips.len();
+            lib.state(c, (10 + 7 * i) % lib.frames[c].frames)
+        })
+        .collect();
+    let s = checks::stress(model, opts, &starts, 5.0, 1.0, 7)?;
+    println!(
+        "random actions, {} worlds x 5 s: finite {}, max speed {:.1} m/s, lowest point {:.3} m ({:?}), joint anchor gap mean {:.2} mm, max {:.1} mm",
+        starts.len(),
+        s.finite,
+        s.max_speed,
+        s.lowest.0,
+        s.lowest.1,
+        1e3 * s.mean_gap,
+        1e3 * s.max_gap
     );
     Ok(())
 }

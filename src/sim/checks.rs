@@ -1,0 +1,119 @@
+//! Accuracy measurements of the simulation, shared by the physics tests and
+//! `skillaug bench sim` (so a speed figure is always printed beside what the
+//! settings cost in accuracy).
+//!
+//! - [`pd_tracking`]: with the root held, the PD drives bring the humanoid
+//!   from the zero pose to a reference pose; the mean joint angle error after
+//!   0.5 s (issue target: under 3 degrees).
+//! - [`stress`]: worlds under random actions: the largest body speed, the
+//!   deepest ground penetration and how far the joint anchors drift apart
+//!   (an exactly solved joint keeps them together; the gap measures how well
+//!   the solver converges).
+
+use super::mjcf::Model;
+use super::objects::ObjectSpec;
+use super::rot;
+use super::vec_env::VecEnv;
+use super::world::{Part, SimOptions, World};
+use crate::motion::state::State;
+use anyhow::Result;
+use rand::{Rng, SeedableRng};
+use rapier3d::math::Vector;
+
+/// Angle between two exp-map rotations, rad.
+pub fn angle_between(a: &[f32], b: &[f32]) -> f32 {
+    let v = |x: &[f32]| Vector::new(x[0], x[1], x[2]);
+    let qa = rot::from_expmap(v(a));
+    let qb = rot::from_expmap(v(b));
+    rot::to_expmap(qa.inverse() * qb).length()
+}
+
+/// Mean joint error, degrees, after the PD drives pulled the humanoid
+/// (root pinned 1 m above `target`'s root, feet clear of the ground, ball
+/// parked aside) from the zero pose towards `target` for 0.5 s.
+pub fn pd_tracking(model: &Model, opts: &SimOptions, target: &State) -> Result<f32> {
+    let mut w = World::new(model, &[ObjectSpec::ball()], opts)?;
+    let mut start = target.clone();
+    start.root_pos[2] += 1.0;
+    start.root_linvel = [0.0; 3];
+    start.root_angvel = [0.0; 3];
+    start.joint_rot.iter_mut().for_each(|v| *v = 0.0);
+    start.joint_vel.iter_mut().for_each(|v| *v = 0.0);
+    start.obj_pos = vec![3.0, 3.0, 0.12];
+    w.set_state(&start)?;
+    w.pin_root(true);
+    w.set_joint_targets(&target.joint_rot);
+    for _ in 0..(0.5 * opts.physics_hz).round() as usize {
+        w.step_physics();
+    }
+    let g = w.get_state();
+    let n = w.n_joints();
+    let sum: f32 = (0..n)
+        .map(|j| angle_between(&g.joint_rot[3 * j..3 * j + 3], &target.joint_rot[3 * j..]))
+        .sum();
+    Ok((sum / n as f32).to_degrees())
+}
+
+/// What [`stress`] saw.
+#[derive(Clone, Debug)]
+pub struct Stress {
+    /// Every body state stayed finite.
+    pub finite: bool,
+    /// Largest speed of any body or object, m/s.
+    pub max_speed: f32,
+    /// Lowest point of any collider, m (negative: penetration), and its owner.
+    pub lowest: (f32, Part),
+    /// Joint anchor gap averaged over joints and policy steps, m.
+    pub mean_gap: f32,
+    /// Largest joint anchor gap seen, m.
+    pub max_gap: f32,
+}
+
+/// Step `starts.len()` worlds (one per start state, with the ball) for
+/// `seconds` under actions drawn uniformly from [-amplitude, amplitude]
+/// around zero (seed `seed`), checking every policy step.
+pub fn stress(
+    model: &Model,
+    opts: &SimOptions,
+    starts: &[State],
+    seconds: f64,
+    amplitude: f32,
+    seed: u64,
+) -> Result<Stress> {
+    let n = starts.len();
+    let mut env = VecEnv::new(model, &[ObjectSpec::ball()], opts, n)?;
+    for (w, s) in env.worlds.iter_mut().zip(starts) {
+        w.set_state(s)?;
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let a = env.action_dim();
+    let policy_steps = (seconds / opts.policy_dt() as f64).round() as usize;
+    let mut out = Stress {
+        finite: true,
+        max_speed: 0.0,
+        lowest: (f32::INFINITY, Part::Ground),
+        mean_gap: 0.0,
+        max_gap: 0.0,
+    };
+    let mut gap_sum = 0f64;
+    for _ in 0..policy_steps {
+        let actions: Vec<f32> = (0..n * a)
+            .map(|_| rng.random_range(-amplitude..=amplitude))
+            .collect();
+        env.step(&actions);
+        for w in &env.worlds {
+            let (speed, finite) = w.max_speed();
+            out.finite &= finite;
+            out.max_speed = out.max_speed.max(speed);
+            let l = w.lowest_point();
+            if l.0 < out.lowest.0 {
+                out.lowest = l;
+            }
+            let (mean, max) = w.joint_gap();
+            gap_sum += mean as f64;
+            out.max_gap = out.max_gap.max(max);
+        }
+    }
+    out.mean_gap = (gap_sum / (policy_steps * n).max(1) as f64) as f32;
+    Ok(out)
+}
