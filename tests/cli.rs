@@ -137,3 +137,15 @@ fn shipped_recipes_resolve() {
     }
     assert!(n > 0);
 }
+
+#[test]
+fn bench_settings_are_checked_before_any_work() {
+    let err = fails(&["bench", "sim", "--set", "sim.bogus=1"]);
+    assert!(err.contains("bogus"), "{err}");
+    let err = fails(&["bench", "sim", "--set", "train.samples=1"]);
+    assert!(err.contains("unknown stage `train`"), "{err}");
+    let err = fails(&["bench", "ingest", "--set", "sim.pgs_iterations=2"]);
+    assert!(err.contains("only `bench sim` takes --set"), "{err}");
+    let err = fails(&["bench", "sim", "--set", "sim.pgs_iterations=\"two\""]);
+    assert!(err.contains("sim.pgs_iterations"), "{err}");
+}

@@ -226,7 +226,8 @@ fn sim(repeat: usize, data_root: Option<PathBuf>, opts: &SimOptions) -> Result<(
         );
     }
     println!(
-        "physics steps of {worlds} worlds x {policy_steps} policy steps x 2 substeps (120 Hz), ball and contacts on; median of {repeat}"
+        "physics steps of {worlds} worlds x {policy_steps} policy steps x {} substeps ({} Hz), ball and contacts on; median of {repeat}",
+        opts.substeps, opts.physics_hz
     );
     println!("settings: {}", settings_changed(opts)?);
     sim_accuracy(&lib, &full, opts)
@@ -239,7 +240,11 @@ fn settings_changed(opts: &SimOptions) -> Result<String> {
     let changed: Vec<String> = now
         .iter()
         .filter(|(k, v)| default.get(*k) != Some(*v))
-        .map(|(k, v)| format!("sim.{k}={v}"))
+        .map(|(k, v)| match v {
+            // the options are f32: print them as such, not widened to f64
+            toml::Value::Float(f) => format!("sim.{k}={}", *f as f32),
+            v => format!("sim.{k}={v}"),
+        })
         .collect();
     Ok(if changed.is_empty() {
         "the defaults".to_string()
