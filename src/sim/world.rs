@@ -23,6 +23,12 @@
 //! torque = kp (target - q) - kd dq/dt per axis, no force limit). A target
 //! triple `e` (target = pi * action) is converted to the three angles a
 //! spherical joint's motors measure, `2 asin(exp(e).imag[i])`.
+//! The joint rows are solved one at a time (scalar, about a quarter of the
+//! step): rapier 0.36 batches joints into SIMD lanes only within a graph
+//! colour of at least 64 joints, and one humanoid has 52 joints in all. A
+//! drive that rapier could batch (the target rotation as a soft locked-axis
+//! constraint) was measured no faster for that reason (3,757 against 3,775
+//! steps/s) and is not offered.
 //!
 //! **Collisions.** Self-collision is on except between a body and its
 //! parent (`contacts_enabled(false)` on the joint); objects collide with
