@@ -74,11 +74,25 @@ fn checkpoint_iteration(out: &Path) -> Option<u64> {
 
 #[test]
 fn a_run_killed_with_sigkill_and_resumed_matches_the_uninterrupted_run() {
+    killed_and_resumed_matches_uninterrupted(false);
+}
+
+#[test]
+fn a_run_with_the_history_encoder_killed_and_resumed_matches_too() {
+    // The encoder embeds the observations of all environments in one batch;
+    // the replayed episodes after a resume must still see the same bits.
+    killed_and_resumed_matches_uninterrupted(true);
+}
+
+fn killed_and_resumed_matches_uninterrupted(he: bool) {
     let (dir, run) = ingested("ballplay");
     let from = run.to_str().unwrap();
     ok(&["build-stg", "--out", from, "-q"]);
+    if he {
+        tiny_encoder(from, 3);
+    }
     // 60 iterations of 32 samples, with every start switch on
-    let extra = [
+    let mut extra = vec![
         "--stf",
         "--stg",
         "--ats",
@@ -91,6 +105,9 @@ fn a_run_killed_with_sigkill_and_resumed_matches_the_uninterrupted_run() {
         "--seed",
         "7",
     ];
+    if he {
+        extra.push("--he");
+    }
     let a = dir.path().join("a");
     ok(&train_args(from, a.to_str().unwrap(), &extra));
 
