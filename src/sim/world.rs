@@ -96,9 +96,9 @@ pub struct SimOptions {
     /// the ground with 2-3 kN: at 120 Hz it sank 3.5 cm (5 of 6 seeds and
     /// starts had steps below 2 cm); at 360 Hz none of 460,800 world-steps
     /// over 12 seeds and starts went below 1.5 cm. 600 Hz goes with the
-    /// smaller `prediction_distance` below: toes and ankles then stayed
-    /// above -1.6 cm over 3 seeds of 64 worlds x 10 s of random actions
-    /// (-1.9 cm at 360 Hz).
+    /// smaller `prediction_distance` below: every body stayed above
+    /// -1.6 cm (toes the deepest, a fingertip next) over 3 seeds of 64
+    /// worlds x 10 s of random actions (-1.9 cm at 360 Hz).
     pub ground_contact_hz: f32,
     /// Largest velocity used to push penetrating bodies apart, m/s
     /// (PhysX `max_depenetration_velocity` 10, reference §2.5).
