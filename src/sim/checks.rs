@@ -16,7 +16,8 @@ use super::rot;
 use super::vec_env::VecEnv;
 use super::world::{Part, SimOptions, World};
 use crate::motion::state::State;
-use anyhow::Result;
+use crate::motion::MotionLib;
+use anyhow::{anyhow, Result};
 use rand::{Rng, SeedableRng};
 use rapier3d::math::Vector;
 
@@ -52,6 +53,19 @@ pub fn pd_tracking(model: &Model, opts: &SimOptions, target: &State) -> Result<f
         .map(|j| angle_between(&g.joint_rot[3 * j..3 * j + 3], &target.joint_rot[3 * j..]))
         .sum();
     Ok((sum / n as f32).to_degrees())
+}
+
+/// `n` start states spread over every clip of `lib`: world `i` starts from
+/// clip `i mod clips` at frame `(10 + 7 i) mod frames`.
+pub fn spread_starts(lib: &MotionLib, n: usize) -> Result<Vec<State>> {
+    (0..n)
+        .map(|i| {
+            let c = i % lib.clips.len();
+            let f = (10 + 7 * i) % lib.frames[c].frames;
+            lib.state(c, f)
+                .ok_or_else(|| anyhow!("clip {c} has no frame {f}"))
+        })
+        .collect()
 }
 
 /// What [`stress`] saw.

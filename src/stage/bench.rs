@@ -270,12 +270,7 @@ fn sim_accuracy(lib: &crate::motion::MotionLib, model: &Model, opts: &SimOptions
         "PD tracking, root held, 0.5 s: mean joint error {mean:.2} deg over {} clips (worst {worst:.2})",
         errors.len()
     );
-    let starts: Vec<State> = (0..16)
-        .filter_map(|i| {
-            let c = i % lib.clips.len();
-            lib.state(c, (10 + 7 * i) % lib.frames[c].frames)
-        })
-        .collect();
+    let starts = checks::spread_starts(lib, 16)?;
     let s = checks::stress(model, opts, &starts, 5.0, 1.0, 7)?;
     println!(
         "random actions, {} worlds x 5 s: finite {}, max speed {:.1} m/s, lowest point {:.3} m ({:?}), joint anchor gap mean {:.2} mm, max {:.1} mm",
