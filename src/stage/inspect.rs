@@ -5,19 +5,12 @@
 //! the later per-frame tables) is joined to the `clips.parquet` beside it so
 //! that frames are counted per skill.
 
-use crate::table::io::read_metadata;
-use anyhow::{Context as _, Result};
+use crate::table::io::{read_frame as read, read_metadata};
+use anyhow::Result;
 use polars::prelude::{
-    col, len, AnyValue, DataFrame, DataType, ExplodeOptions, IntoLazy, ParquetReader, SerReader,
+    col, len, AnyValue, DataFrame, DataType, ExplodeOptions, IntoLazy,
 };
 use std::path::Path;
-
-fn read(path: &Path) -> Result<DataFrame> {
-    let f = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    ParquetReader::new(f)
-        .finish()
-        .with_context(|| format!("{}: cannot read as Parquet", path.display()))
-}
 
 /// Print the summary of `path`.
 pub fn run(path: &Path) -> Result<()> {
