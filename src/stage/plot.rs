@@ -104,23 +104,17 @@ pub fn n_histogram(path: &Path) -> Result<Vec<(u32, u32)>> {
         .sort(["n_masked"], SortMultipleOptions::default())
         .collect()
         .with_context(|| format!("{}: histogram of n_masked", path.display()))?;
-    let n = g
-        .column("n_masked")?
-        .cast(&polars::prelude::DataType::UInt32)?;
-    let e = g
-        .column("edges")?
-        .cast(&polars::prelude::DataType::UInt32)?;
-    let (n, e) = (n.u32()?, e.u32()?);
-    Ok((0..g.height())
-        .map(|i| (n.get(i).unwrap_or(0), e.get(i).unwrap_or(0)))
-        .collect())
+    let n = crate::table::io::frame_u32s(&g, "n_masked")?;
+    let e = crate::table::io::frame_u32s(&g, "edges")?;
+    Ok(n.into_iter().zip(e).collect())
 }
 
 /// One bar per eval cell: (label, cell, value, interval).
 type Cell = (String, String, f64, Option<(f64, f64)>);
 
 fn eval_cells(path: &Path) -> Result<Vec<Cell>> {
-    use crate::table::eval::{frame_f64s, frame_strs, summary_frame};
+    use crate::table::eval::summary_frame;
+    use crate::table::io::{frame_f64s, frame_strs};
     let df = summary_frame(path)?;
     let s = |c: &str| frame_strs(&df, c);
     let f = |c: &str| frame_f64s(&df, c);

@@ -301,7 +301,8 @@ pub struct MethodRow {
 
 /// The rows of one summary file (polars), one per label.
 pub fn load(path: &Path) -> Result<Vec<MethodRow>> {
-    use crate::table::eval::{frame_f64s, frame_strs, summary_frame};
+    use crate::table::eval::summary_frame;
+    use crate::table::io::{frame_f64s, frame_strs};
     let df = summary_frame(path)?;
     let s = |c: &str| frame_strs(&df, c);
     let (label, metric, from, to) = (s("label")?, s("metric")?, s("from_skill")?, s("to_skill")?);

@@ -216,23 +216,14 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
         .sort(["metric", "from", "to"], SortMultipleOptions::default())
         .collect()
         .context("eval summary")?;
-    let text = |name: &str| -> Result<Vec<String>> {
-        let c = g.column(name)?.str()?.clone();
-        Ok((0..c.len())
-            .map(|i| c.get(i).unwrap_or_default().to_string())
-            .collect())
-    };
-    let (m, f, t) = (text("metric")?, text("from")?, text("to")?);
-    let u32s = |name: &str| -> Result<Vec<u32>> {
-        let c = g.column(name)?.cast(&polars::prelude::DataType::UInt32)?;
-        let c = c.u32()?;
-        Ok((0..c.len()).map(|i| c.get(i).unwrap_or(0)).collect())
-    };
-    let (n, k) = (u32s("n")?, u32s("k")?);
-    let smc = g.column("sm")?.f64()?.clone();
-    let sm: Vec<f64> = (0..smc.len())
-        .map(|i| smc.get(i).unwrap_or(f64::NAN))
-        .collect();
+    use crate::table::io::{frame_f64s, frame_strs, frame_u32s};
+    let (m, f, t) = (
+        frame_strs(&g, "metric")?,
+        frame_strs(&g, "from")?,
+        frame_strs(&g, "to")?,
+    );
+    let (n, k) = (frame_u32s(&g, "n")?, frame_u32s(&g, "k")?);
+    let sm = frame_f64s(&g, "sm")?;
     let mut out = Vec::with_capacity(m.len());
     for i in 0..m.len() {
         let nr = m[i] == "nr";
@@ -296,20 +287,4 @@ pub fn summary_frame(path: &std::path::Path) -> Result<DataFrame> {
         }
     }
     Ok(df)
-}
-
-/// A string column of a frame (nulls as "").
-pub fn frame_strs(df: &DataFrame, name: &str) -> Result<Vec<String>> {
-    let col = df.column(name)?.str()?.clone();
-    Ok((0..col.len())
-        .map(|i| col.get(i).unwrap_or_default().to_string())
-        .collect())
-}
-
-/// A Float64 column of a frame (nulls as NaN).
-pub fn frame_f64s(df: &DataFrame, name: &str) -> Result<Vec<f64>> {
-    let col = df.column(name)?.f64()?.clone();
-    Ok((0..col.len())
-        .map(|i| col.get(i).unwrap_or(f64::NAN))
-        .collect())
 }

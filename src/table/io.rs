@@ -166,3 +166,28 @@ pub fn read_frame(path: &Path) -> Result<polars::prelude::DataFrame> {
         .finish()
         .with_context(|| format!("{}: cannot read as Parquet", path.display()))
 }
+
+/// A string column of a frame (nulls as "").
+pub fn frame_strs(df: &polars::prelude::DataFrame, name: &str) -> Result<Vec<String>> {
+    let col = df.column(name)?.str()?.clone();
+    Ok((0..col.len())
+        .map(|i| col.get(i).unwrap_or_default().to_string())
+        .collect())
+}
+
+/// A Float64 column of a frame (nulls as NaN).
+pub fn frame_f64s(df: &polars::prelude::DataFrame, name: &str) -> Result<Vec<f64>> {
+    let col = df.column(name)?.f64()?.clone();
+    Ok((0..col.len())
+        .map(|i| col.get(i).unwrap_or(f64::NAN))
+        .collect())
+}
+
+/// An integer column of a frame as u32 (cast; nulls as 0).
+pub fn frame_u32s(df: &polars::prelude::DataFrame, name: &str) -> Result<Vec<u32>> {
+    let col = df
+        .column(name)?
+        .cast(&polars::prelude::DataType::UInt32)?;
+    let col = col.u32()?;
+    Ok((0..col.len()).map(|i| col.get(i).unwrap_or(0)).collect())
+}
