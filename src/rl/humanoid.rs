@@ -340,10 +340,9 @@ pub struct EpisodeRecord {
 pub struct RecordedStep {
     /// Posture after the step.
     pub posture: crate::motion::state::Posture,
-    /// Reference frame (clip, frame) the step was scored against.
+    /// Reference frame (clip, frame) the step was scored against; `None`
+    /// for a masked step (no reward target).
     pub reference: Option<(u32, u32)>,
-    /// No reward target at this step.
-    pub masked: bool,
 }
 
 /// What one environment reports after a step.
@@ -558,7 +557,6 @@ impl Ctx<'_> {
             reference: tracked
                 .filter(|_| reference.is_some())
                 .and_then(|st| st.ref_clip.zip(st.ref_frame)),
-            masked: reference.is_none(),
         });
         ep.prev_joint_vel = s.joint_vel;
         Outcome {
@@ -742,15 +740,15 @@ impl<'a> HumanoidEnv<'a> {
         &self.sm
     }
 
-    /// Keep each step's posture and reference ([`HumanoidEnv::recorded`]).
+    /// Keep each step's posture and reference ([`HumanoidEnv::take_recorded`]).
     pub fn set_recording(&mut self, on: bool) {
         self.record = on;
     }
 
     /// Each environment's last step when recording is on (for an
-    /// environment whose episode ended, its final step).
-    pub fn recorded(&self) -> &[Option<RecordedStep>] {
-        &self.records
+    /// environment whose episode ended, its final step), moved out.
+    pub fn take_recorded(&mut self) -> Vec<Option<RecordedStep>> {
+        std::mem::take(&mut self.records)
     }
 
     /// Take the totals since the last call.
@@ -979,7 +977,9 @@ impl VecEnv for HumanoidEnv<'_> {
             .iter_mut()
             .map(|o| std::mem::take(&mut o.probe))
             .collect();
-        self.records = outs.iter_mut().map(|o| o.record.take()).collect();
+        if self.record {
+            self.records = outs.iter_mut().map(|o| o.record.take()).collect();
+        }
         let mut res = StepResult {
             rewards,
             terminated: vec![false; n],

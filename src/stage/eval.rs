@@ -205,6 +205,7 @@ impl Evaluator<'_> {
             let obs = env.observe();
             let act = self.agent.act(&obs, true, &mut rng)?;
             let r = env.step(&act.actions, &mut rng)?;
+            let mut recs = env.take_recorded();
             for e in 0..n {
                 if !active[e] {
                     continue;
@@ -217,7 +218,7 @@ impl Evaluator<'_> {
                     sums[e].0 += sm;
                     sums[e].1 += 1;
                 }
-                if let Some(rec) = env.recorded().get(e).and_then(Option::as_ref) {
+                if let Some(rec) = recs.get_mut(e).and_then(Option::take) {
                     running[e].push(RolloutStep {
                         metric: cell.metric.to_string(),
                         from: cell.from.clone(),
@@ -225,9 +226,9 @@ impl Evaluator<'_> {
                         trial: 0,
                         step: sums[e].2 as u32,
                         reference: rec.reference,
-                        masked: rec.masked,
+                        masked: rec.reference.is_none(),
                         sm_reward: env.sm_rewards()[e],
-                        posture: rec.posture.clone(),
+                        posture: rec.posture,
                     });
                 }
                 if r.terminated[e] || r.truncated[e] {
