@@ -304,7 +304,7 @@ pub fn actor(
         .flatten()
         .next()
         .with_context(|| format!("`{name}` has no valid frame to draw"))?;
-    let mut last = first.clone();
+    let mut last = first;
     let mut body = Vec::with_capacity(frames.len() * nb * 7);
     let mut obj = Vec::with_capacity(frames.len() * n_objects * 7);
     let mut mask = Vec::with_capacity(frames.len());
@@ -317,7 +317,7 @@ pub fn actor(
                     nb - 1
                 );
             }
-            last = p.clone();
+            last = p;
         }
         let (pos, rot) = body_poses(model, last.root_pos, last.root_rot, &last.joint_rot);
         for b in 0..nb {

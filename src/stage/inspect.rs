@@ -7,9 +7,7 @@
 
 use crate::table::io::{read_frame as read, read_metadata};
 use anyhow::Result;
-use polars::prelude::{
-    col, len, AnyValue, DataFrame, DataType, ExplodeOptions, IntoLazy,
-};
+use polars::prelude::{col, len, AnyValue, DataFrame, DataType, ExplodeOptions, IntoLazy};
 use std::path::Path;
 
 /// Print the summary of `path`.

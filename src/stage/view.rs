@@ -160,30 +160,27 @@ pub fn run(req: &ViewRequest) -> Result<usize> {
                 .collect::<Result<_>>()?
         };
         for t in chosen {
+            // missing reference frames stay `None`: the actor holds the
+            // last pose and marks them
             let mut poses = vec![Some(t.start.clone())];
             let mut masked = vec![false];
-            let mut last = t.start.clone();
-            let mut fps = 60.0;
-            let mut obj_names = lib.clips[0].objects.clone();
+            let mut clip = None;
             for (m, r) in &t.steps {
                 if let Some((c, _)) = r {
-                    let row = lib.clips.get(*c as usize).with_context(|| {
+                    clip = Some(lib.clips.get(*c as usize).with_context(|| {
                         format!(
                             "{}: trajectory {} names clip {c}, which {} lacks",
                             p.display(),
                             t.traj_id,
                             req.from.display()
                         )
-                    })?;
-                    fps = row.fps as f64;
-                    obj_names = row.objects.clone();
+                    })?);
                 }
-                if let Some(q) = r.and_then(|(c, f)| frame(&lib, c, f)) {
-                    last = q;
-                }
-                poses.push(Some(last.clone()));
+                poses.push(r.and_then(|(c, f)| frame(&lib, c, f)));
                 masked.push(*m);
             }
+            let row = clip.unwrap_or(&lib.clips[0]);
+            let (fps, obj_names) = (row.fps as f64, &row.objects);
             items.push(Item {
                 title: format!("STF trajectory {} ({})", t.traj_id, t.start_kind),
                 skill: t.target_skill.clone(),
@@ -192,7 +189,7 @@ pub fn run(req: &ViewRequest) -> Result<usize> {
                     t.start_kind, t.beta, t.n_masked
                 ),
                 fps,
-                objects: objs.of(&obj_names, &root)?,
+                objects: objs.of(obj_names, &root)?,
                 actors: vec![view::actor(
                     "STF sample",
                     &model,
@@ -254,7 +251,6 @@ pub fn run(req: &ViewRequest) -> Result<usize> {
                 .iter()
                 .map(|s| s.reference.and_then(|(c, f)| frame(&lib, c, f)))
                 .collect();
-            let ref_masked: Vec<bool> = refs.iter().map(Option::is_none).collect();
             let clip = st.iter().find_map(|s| s.reference).map(|r| r.0 as usize);
             let (fps, obj_names) = match clip.and_then(|c| lib.clips.get(c)) {
                 Some(r) => (r.fps as f64, r.objects.clone()),
@@ -269,14 +265,8 @@ pub fn run(req: &ViewRequest) -> Result<usize> {
                 Some(("SM", &value)),
             )?];
             if refs.iter().any(Option::is_some) {
-                actors.push(view::actor(
-                    "reference",
-                    &model,
-                    nob,
-                    &refs,
-                    &ref_masked,
-                    None,
-                )?);
+                // a missing reference frame is drawn held and masked
+                actors.push(view::actor("reference", &model, nob, &refs, &[], None)?);
             }
             let scored: Vec<f64> = st.iter().filter_map(|s| s.sm_reward).collect();
             items.push(Item {

@@ -185,9 +185,7 @@ pub fn frame_f64s(df: &polars::prelude::DataFrame, name: &str) -> Result<Vec<f64
 
 /// An integer column of a frame as u32 (cast; nulls as 0).
 pub fn frame_u32s(df: &polars::prelude::DataFrame, name: &str) -> Result<Vec<u32>> {
-    let col = df
-        .column(name)?
-        .cast(&polars::prelude::DataType::UInt32)?;
+    let col = df.column(name)?.cast(&polars::prelude::DataType::UInt32)?;
     let col = col.u32()?;
     Ok((0..col.len()).map(|i| col.get(i).unwrap_or(0)).collect())
 }
