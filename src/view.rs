@@ -391,17 +391,9 @@ pub fn write(scene: &Scene, path: &Path) -> Result<()> {
     if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
+    // a page is for reading (and serving), so not the usual 0600
     let mut staged = crate::table::io::Staged::new();
-    staged.with_path(path, |tmp| {
-        std::fs::write(tmp, text.as_bytes())?;
-        #[cfg(unix)]
-        {
-            // a page is for reading (and serving): not the temporary file's 0600
-            use std::os::unix::fs::PermissionsExt;
-            std::fs::set_permissions(tmp, std::fs::Permissions::from_mode(0o644))?;
-        }
-        Ok(())
-    })?;
+    staged.shared_text(path, &text)?;
     staged.commit()
 }
 

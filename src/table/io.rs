@@ -29,14 +29,26 @@ impl Staged {
     }
 
     fn temp_for(dest: &Path) -> Result<NamedTempFile> {
+        Self::temp_with(dest, None)
+    }
+
+    /// A temporary file beside `dest`; `mode` (unix permission bits)
+    /// replaces the temporary file's 0600.
+    fn temp_with(dest: &Path, mode: Option<u32>) -> Result<NamedTempFile> {
         let dir = dest
             .parent()
             .filter(|p| !p.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
-        tempfile::Builder::new()
-            .prefix(".skillaug-")
-            .suffix(".tmp")
-            .tempfile_in(dir)
+        let mut b = tempfile::Builder::new();
+        b.prefix(".skillaug-").suffix(".tmp");
+        #[cfg(unix)]
+        if let Some(m) = mode {
+            use std::os::unix::fs::PermissionsExt;
+            b.permissions(std::fs::Permissions::from_mode(m));
+        }
+        #[cfg(not(unix))]
+        let _ = mode;
+        b.tempfile_in(dir)
             .with_context(|| format!("cannot create a temporary file in {}", dir.display()))
     }
 
@@ -83,7 +95,16 @@ impl Staged {
 
     /// Stage a text file.
     pub fn text(&mut self, dest: &Path, text: &str) -> Result<()> {
-        let mut tmp = Self::temp_for(dest)?;
+        self.text_with(dest, text, None)
+    }
+
+    /// Stage a text file for others to read (a page): mode 0644.
+    pub fn shared_text(&mut self, dest: &Path, text: &str) -> Result<()> {
+        self.text_with(dest, text, Some(0o644))
+    }
+
+    fn text_with(&mut self, dest: &Path, text: &str, mode: Option<u32>) -> Result<()> {
+        let mut tmp = Self::temp_with(dest, mode)?;
         tmp.write_all(text.as_bytes())?;
         tmp.flush()?;
         self.files.push((tmp, dest.to_path_buf()));
