@@ -272,9 +272,12 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
         }
     }
     let err = (err / nb as f64).sqrt();
-    // measured 3.8 cm (mean 3.4 cm) on frame 0 of clip 0; the issue allows a
-    // mean of 5 cm on BallPlay
+    // One frame's rms error, measured 3.8 cm on frame 0 of clip 0 (its mean
+    // error 3.4 cm); 6 cm leaves room over that. The simulation issue's own
+    // bound, a mean of 5 cm per BallPlay clip, is checked by `check-fk`.
     assert!(err < 0.06, "rms body position error of frame 0: {err} m");
+    // the page stores body 0 first, as position then rotation: its position
+    // is the stored root, bit for bit
     assert_eq!(&body[..3], &frames.root_pos[..3]);
 
     // STF: the start, then one frame per step, masked steps marked
@@ -470,10 +473,14 @@ fn plot_draws_every_table_kind() {
         let n = blue(&px);
         assert!(n >= least, "{name}: {n} pixels of the first series");
     }
-    // the histogram's bars add up to the graph's edges
+    // each bar is the number of the graph's edges with that N (counted
+    // here from the edges as the stage reads them, not through polars)
     let hist = skillaug::stage::plot::n_histogram(&stg).unwrap();
-    let edges = skillaug::table::io::read_parquet(&stg).unwrap().rows();
-    assert_eq!(hist.iter().map(|h| h.1 as usize).sum::<usize>(), edges);
+    let mut counted = std::collections::BTreeMap::<u32, u32>::new();
+    for e in skillaug::table::stg::read(&stg).unwrap() {
+        *counted.entry(e.n_masked).or_default() += 1;
+    }
+    assert_eq!(hist, counted.into_iter().collect::<Vec<_>>());
     // tables of different kinds are refused together
     let err = fails(&["plot", stg.to_str().unwrap(), he.to_str().unwrap()]);
     assert!(err.contains("plot tables of one kind together"), "{err}");
