@@ -3,8 +3,7 @@
 "use strict";
 (function () {
   const errorsEl = document.getElementById("errors");
-  const state = { frame: 0, played: 0, ticks: 0, errors: [] };
-  window.skillaugViewer = state;
+  const state = { frame: 0, played: 0, errors: [] };
   function fail(msg) {
     state.errors.push(String(msg));
     errorsEl.textContent = state.errors.join("\n");
@@ -463,7 +462,6 @@
       const dpr = window.devicePixelRatio || 1;
       if (Math.floor(canvas.clientWidth * dpr) !== W || Math.floor(canvas.clientHeight * dpr) !== H) layout();
       else if (item) render();
-      state.ticks++;
     } catch (e) {
       fail("error: " + e.message);
       return;
