@@ -74,8 +74,7 @@ pub fn run(cli: Cli) -> Result<()> {
             goals: &a.goal,
             title: a.title.as_deref(),
             out: &a.out,
-        })
-        .map(|_| ()),
+        }),
         Command::View(a) => {
             let n = stage::view::run(&stage::view::ViewRequest {
                 from: a.from,

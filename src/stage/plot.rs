@@ -11,7 +11,7 @@
 //! * `eval_summary`: a bar per cell (metric, from, to) with its 95 % Wilson
 //!   interval, a series per method label.
 //!
-//! Histograms and eval summaries are grouped with polars.
+//! Histograms are counted and eval summaries read with polars.
 
 use crate::plot::{write_bars_png, write_png, BarChart, BarSeries, Chart, Series};
 use anyhow::{bail, Context, Result};
@@ -152,8 +152,8 @@ pub struct PlotRequest<'a> {
     pub out: &'a Path,
 }
 
-/// Run the command; returns the table kind drawn.
-pub fn run(req: &PlotRequest<'_>) -> Result<String> {
+/// Run the command.
+pub fn run(req: &PlotRequest<'_>) -> Result<()> {
     if req.inputs.is_empty() {
         bail!("plot: give at least one skillaug table or run folder");
     }
@@ -286,5 +286,5 @@ pub fn run(req: &PlotRequest<'_>) -> Result<String> {
         ),
     }
     println!("wrote {}", req.out.display());
-    Ok(kind)
+    Ok(())
 }
