@@ -93,6 +93,9 @@ pub struct PpoConfig {
     /// mini-epochs instead of before them, so the update sees the inputs the
     /// rollout's actions and log-probabilities were computed from (ratio 1
     /// at the first minibatch). rl_games merges before (during) the update.
+    /// Off: on DF (`stages/df-run.toml`, seed 0, 512 x 32 batches) it removed
+    /// the first update's KL jump (0.11 against 9.2) but reached 0.136 SM
+    /// per step with 48 % falls at 2M samples against 0.130 and 26 %.
     pub norm_after_update: bool,
     /// Policy head weights drawn from `U(-b, b)`; `None`: PyTorch default.
     pub policy_out_bound: Option<f64>,
