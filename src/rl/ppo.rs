@@ -94,8 +94,9 @@ pub struct PpoConfig {
     /// rollout's actions and log-probabilities were computed from (ratio 1
     /// at the first minibatch). rl_games merges before (during) the update.
     /// Off: on DF (`stages/df-run.toml`, seed 0, 512 x 32 batches) it removed
-    /// the first update's KL jump (0.11 against 9.2) but reached 0.136 SM
-    /// per step with 48 % falls at 2M samples against 0.130 and 26 %.
+    /// the first update's KL jump (approximate KL 0.35 against 64) but
+    /// reached 0.134 SM per step with 48 % falls over the 160k samples
+    /// before 2M, against 0.129 and 27.5 %.
     pub norm_after_update: bool,
     /// Policy head weights drawn from `U(-b, b)`; `None`: PyTorch default.
     pub policy_out_bound: Option<f64>,
