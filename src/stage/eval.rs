@@ -192,7 +192,8 @@ impl Evaluator<'_> {
             self.agent.obs_dim(),
             env.obs_dim()
         );
-        env.set_recording(cfg.record > 0);
+        let mut recording = cfg.record > 0;
+        env.set_recording(recording);
         let mut rows = Vec::with_capacity(cfg.trials);
         let mut recorded = Vec::new();
         let mut running: Vec<Vec<RolloutStep>> = vec![Vec::new(); n];
@@ -233,7 +234,7 @@ impl Evaluator<'_> {
                 }
                 if r.terminated[e] || r.truncated[e] {
                     let trial = rows.len() as u32;
-                    let steps = running.get_mut(e).map(std::mem::take).unwrap_or_default();
+                    let steps = std::mem::take(&mut running[e]);
                     if (trial as usize) < cfg.record {
                         recorded.extend(steps.into_iter().map(|s| RolloutStep { trial, ..s }));
                     }
@@ -262,9 +263,10 @@ impl Evaluator<'_> {
             }
             // trial numbers follow the finishing order: once `record`
             // trials have finished, no running trial will be kept
-            if cfg.record > 0 && rows.len() >= cfg.record && !running.is_empty() {
+            if recording && rows.len() >= cfg.record {
+                recording = false;
                 env.set_recording(false);
-                running = Vec::new();
+                running.iter_mut().for_each(Vec::clear);
             }
         }
         Ok((rows, recorded))
