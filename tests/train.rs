@@ -110,6 +110,11 @@ fn killed_and_resumed_matches_uninterrupted(he: bool) {
     }
     let a = dir.path().join("a");
     ok(&train_args(from, a.to_str().unwrap(), &extra));
+    // the encoder's 3 dimensions are in the observation exactly when asked
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(a.join("policy.meta.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["obs_dim"], if he { 905 } else { 902 });
 
     let b = dir.path().join("b");
     let args = train_args(from, b.to_str().unwrap(), &extra);
