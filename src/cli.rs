@@ -29,6 +29,10 @@ pub enum Command {
     Train(TrainArgs),
     /// Forward kinematics of the MJCF humanoid against the clips' body positions
     CheckFk(StageArgs),
+    /// What the clips' contact flag measures: simulated contact rules against it, frame by frame
+    CheckContact(StageArgs),
+    /// Where each clip's reference continues past its end in training (loop seams and their similarity)
+    Seams(StageArgs),
     /// Summarise a skillaug Parquet file: rows, clips, skills, frames, value ranges
     Inspect(InspectArgs),
     /// Print a table's schema, one field per line

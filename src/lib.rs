@@ -92,6 +92,8 @@ pub fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::CheckFk(a) => stage::check_fk::run(&stage::Common::new(a)?),
+        Command::CheckContact(a) => stage::check_contact::run(&stage::Common::new(a)?),
+        Command::Seams(a) => stage::seams::run(&stage::Common::new(a)?),
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => stage::schema::run(&a.name),
         Command::Bench(a) => stage::bench::run(&a.name, a.repeat, a.data_root, &a.set),

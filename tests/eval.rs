@@ -80,6 +80,64 @@ fn eval_writes_trials_and_a_summary_with_every_cell() {
 }
 
 #[test]
+fn eval_gives_the_share_of_trials_standing_from_each_trials_first_fall() {
+    let (dir, run) = ingested("ballplay");
+    let from = run.to_str().unwrap();
+    let pol = dir.path().join("pol");
+    tiny_train(
+        from,
+        pol.to_str().unwrap(),
+        &["--set", "train.skills=[\"run\"]"],
+    );
+    let out = dir.path().join("ev");
+    ok(&[
+        "eval",
+        "--from",
+        from,
+        "--policy",
+        pol.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--set",
+        "eval.trials=4",
+        "--set",
+        "eval.envs=4",
+        "--set",
+        "eval.steps=200",
+        "--set",
+        "eval.metrics=[\"sr\"]",
+        "-q",
+    ]);
+    use arrow::array::AsArray;
+    use arrow::datatypes::{Float64Type, UInt32Type};
+    let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
+    let down = t.batches[0]
+        .column_by_name("down_step")
+        .unwrap()
+        .as_primitive::<UInt32Type>();
+    let downs: Vec<Option<u32>> = (0..down.len())
+        .map(|i| down.is_valid(i).then(|| down.value(i)))
+        .collect();
+    assert_eq!(downs.len(), 4);
+    assert!(downs.iter().flatten().all(|&d| (1..=200).contains(&d)));
+    let s = skillaug::table::io::read_parquet(&out.join("eval_summary.parquet")).unwrap();
+    let b = &s.batches[0];
+    let col = |n: &str| {
+        b.column_by_name(n)
+            .unwrap()
+            .as_primitive::<Float64Type>()
+            .value(0)
+    };
+    for (at, name) in [(100, "standing_100"), (200, "standing_200")] {
+        let up = downs.iter().filter(|d| d.is_none_or(|d| d > at)).count();
+        assert_eq!(col(name), up as f64 / 4.0, "{name}");
+    }
+    assert!(col("standing_200") <= col("standing_100"));
+    // trials of 200 steps say nothing about steps 400 and 600
+    assert!(col("standing_400").is_nan() && col("standing_600").is_nan());
+}
+
+#[test]
 fn eval_refuses_a_policy_of_another_dataset_or_without_its_encoder() {
     let (dir, run) = ingested("ballplay");
     let from = run.to_str().unwrap();

@@ -234,12 +234,35 @@ fn contact_forces_weigh_a_resting_ball_and_flag_a_ball_landing_on_the_hand() {
                 .map(|b| c.body_force[b].iter().map(|f| f * f).sum::<f32>().sqrt())
                 .sum();
             assert!(hand_force > 0.0, "a touching hand feels a force");
-            let flags = c.reward_contacts(lib.skeleton.contact_penalty_bodies());
+            let touch = skillaug::reward::ContactDetect::Touch;
+            let flags = c.reward_contacts(lib.skeleton.contact_penalty_bodies(), touch, 0.2);
             assert!(flags.ball_hands);
             break;
         }
     }
     assert!(touched_hand, "the ball never touched the hand");
+
+    // proximity: the ball 0.15 m above the finger's origin counts within
+    // 0.2 m, not within 0.1 m, and touching pairs do not (nothing touches)
+    s.obj_pos = vec![p[0], p[1], p[2] + 0.15];
+    s.obj_linvel = vec![0.0; 3];
+    w.set_state(&s).unwrap();
+    let d = w.hand_distance(0);
+    assert!((d - 0.15).abs() < 1e-3 || d < 0.15, "hand distance {d}");
+    let c = w.step_with_contacts();
+    use skillaug::reward::ContactDetect;
+    let pen = lib.skeleton.contact_penalty_bodies();
+    assert!(
+        c.reward_contacts(pen, ContactDetect::Proximity, 0.2)
+            .ball_hands
+    );
+    assert!(
+        !c.reward_contacts(pen, ContactDetect::Proximity, 0.1)
+            .ball_hands
+            || d < 0.1
+    );
+    assert!(!c.reward_contacts(pen, ContactDetect::Touch, 0.2).ball_hands);
+    assert!(c.object_hand_distance[0] <= d + 0.05);
 }
 
 #[test]

@@ -35,10 +35,14 @@ struct Run {
 }
 
 fn start(seed: u64) -> Run {
+    start_with(seed, &small_cfg())
+}
+
+fn start_with(seed: u64, cfg: &PpoConfig) -> Run {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let env = PointMass::new(N_ENVS, EP_LEN, true, &mut rng);
     Run {
-        agent: Agent::new(OBS_DIM, ACT_DIM, &small_cfg(), seed, &Device::Cpu).unwrap(),
+        agent: Agent::new(OBS_DIM, ACT_DIM, cfg, seed, &Device::Cpu).unwrap(),
         env,
         tracker: EpisodeTracker::new(N_ENVS),
         rng,
@@ -109,6 +113,25 @@ fn same_seed_same_weights() {
     assert_ne!(weights(&a.agent), weights(&c.agent));
 }
 
+/// Save `r`'s agent at `path` and its caller state (generator position,
+/// environment, tracker) as a checkpoint would, drop it, and load it back.
+fn save_and_reload(r: Run, path: &std::path::Path) -> Run {
+    r.agent.save(path).unwrap();
+    let seed = r.rng.get_seed();
+    let word = r.rng.get_word_pos();
+    let env_json = serde_json::to_string(&r.env).unwrap();
+    let tracker_json = serde_json::to_string(&r.tracker).unwrap();
+    drop(r);
+    let mut rng = ChaCha8Rng::from_seed(seed);
+    rng.set_word_pos(word);
+    Run {
+        agent: Agent::load(path, &Device::Cpu).unwrap(),
+        env: serde_json::from_str(&env_json).unwrap(),
+        tracker: serde_json::from_str(&tracker_json).unwrap(),
+        rng,
+    }
+}
+
 #[test]
 fn save_load_resumes_exactly() {
     let dir = tempfile::tempdir().unwrap();
@@ -120,22 +143,7 @@ fn save_load_resumes_exactly() {
 
     let mut first = start(11);
     iterate(&mut first);
-    first.agent.save(&path).unwrap();
-    // The caller's state: generator position, environment, tracker.
-    let seed = first.rng.get_seed();
-    let word = first.rng.get_word_pos();
-    let env_json = serde_json::to_string(&first.env).unwrap();
-    let tracker_json = serde_json::to_string(&first.tracker).unwrap();
-    drop(first);
-
-    let mut rng = ChaCha8Rng::from_seed(seed);
-    rng.set_word_pos(word);
-    let mut resumed = Run {
-        agent: Agent::load(&path, &Device::Cpu).unwrap(),
-        env: serde_json::from_str(&env_json).unwrap(),
-        tracker: serde_json::from_str(&tracker_json).unwrap(),
-        rng,
-    };
+    let mut resumed = save_and_reload(first, &path);
     assert_eq!(resumed.agent.optimizer_steps(), 16);
     iterate(&mut resumed);
 
@@ -146,6 +154,79 @@ fn save_load_resumes_exactly() {
         resumed.agent.optimizer_steps()
     );
     assert!(Agent::sidecar_path(&path).exists());
+}
+
+/// The adaptive learning rate and value normalisation (both off by default).
+fn adaptive_cfg() -> PpoConfig {
+    PpoConfig {
+        kl_threshold: Some(0.008),
+        normalize_value: true,
+        ..small_cfg()
+    }
+}
+
+#[test]
+fn the_adaptive_rate_and_value_normalisation_still_learn_point_mass_reaching() {
+    let mut r = start_with(7, &adaptive_cfg());
+    let before = eval(&r.agent);
+    let mut rates = Vec::new();
+    for _ in 0..150 {
+        rates.push(iterate(&mut r).lr);
+    }
+    let after = eval(&r.agent);
+    let (lo, hi) = rates
+        .iter()
+        .fold((f64::INFINITY, 0f64), |(a, b), &x| (a.min(x), b.max(x)));
+    eprintln!("adaptive: return {before:.3} -> {after:.3}, lr in [{lo:.2e}, {hi:.2e}]");
+    assert!(hi > lo, "the rate never moved");
+    assert!(rates.iter().all(|&x| (1e-6..=1e-2).contains(&x)));
+    assert!(after > before + 18.0, "before {before}, after {after}");
+}
+
+#[test]
+fn the_adaptive_rate_and_value_statistics_survive_save_and_load() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ckpt.safetensors");
+    let mut full = start_with(11, &adaptive_cfg());
+    for _ in 0..3 {
+        iterate(&mut full);
+    }
+    let mut first = start_with(11, &adaptive_cfg());
+    iterate(&mut first);
+    iterate(&mut first);
+    let lr = first.agent.learning_rate();
+    let mut resumed = save_and_reload(first, &path);
+    assert_eq!(resumed.agent.learning_rate().to_bits(), lr.to_bits());
+    iterate(&mut resumed);
+    assert_eq!(weights(&full.agent), weights(&resumed.agent));
+    assert_eq!(
+        full.agent.learning_rate().to_bits(),
+        resumed.agent.learning_rate().to_bits()
+    );
+    // values come back in return units through the same statistics
+    let obs = vec![0.1f32; OBS_DIM];
+    assert_eq!(
+        full.agent.values(&obs).unwrap(),
+        resumed.agent.values(&obs).unwrap()
+    );
+}
+
+#[test]
+fn a_critic_only_update_leaves_the_policy_alone() {
+    let mut r = start(5);
+    let ro = collect(&r.agent, &mut r.env, HORIZON, &mut r.tracker, &mut r.rng).unwrap();
+    let before = weights(&r.agent);
+    r.agent.update_with(&ro, &mut r.rng, true).unwrap();
+    let after = weights(&r.agent);
+    let changed = |prefix: &str| {
+        before
+            .iter()
+            .zip(&after)
+            .filter(|((k, _), _)| k.starts_with(prefix))
+            .any(|((_, a), (_, b))| a != b)
+    };
+    assert!(!changed("pi"), "the policy moved in a critic-only update");
+    assert!(changed("vf"), "the critic did not learn");
 }
 
 // ---- normaliser ----

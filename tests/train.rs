@@ -74,17 +74,41 @@ fn checkpoint_iteration(out: &Path) -> Option<u64> {
 
 #[test]
 fn a_run_killed_with_sigkill_and_resumed_matches_the_uninterrupted_run() {
-    killed_and_resumed_matches_uninterrupted(false);
+    killed_and_resumed_matches_uninterrupted(false, &[]);
+}
+
+#[test]
+fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
+    // continuation past the clip end (200-step episodes, no early
+    // termination, so the references do continue), the warm start, the
+    // critic warm-up, the adaptive learning rate and value normalisation
+    killed_and_resumed_matches_uninterrupted(
+        false,
+        &[
+            "--set",
+            "train.episode_length=200",
+            "--set",
+            "train.early_termination=false",
+            "--set",
+            "train.warm_start_epochs=2",
+            "--set",
+            "train.critic_warmup_iters=3",
+            "--set",
+            "train.ppo.kl_threshold=0.008",
+            "--set",
+            "train.ppo.normalize_value=true",
+        ],
+    );
 }
 
 #[test]
 fn a_run_with_the_history_encoder_killed_and_resumed_matches_too() {
     // The encoder embeds the observations of all environments in one batch;
     // the replayed episodes after a resume must still see the same bits.
-    killed_and_resumed_matches_uninterrupted(true);
+    killed_and_resumed_matches_uninterrupted(true, &[]);
 }
 
-fn killed_and_resumed_matches_uninterrupted(he: bool) {
+fn killed_and_resumed_matches_uninterrupted(he: bool, more: &[&str]) {
     let (dir, run) = ingested("ballplay");
     let from = run.to_str().unwrap();
     ok(&["build-stg", "--out", from, "-q"]);
@@ -108,6 +132,7 @@ fn killed_and_resumed_matches_uninterrupted(he: bool) {
     if he {
         extra.push("--he");
     }
+    extra.extend_from_slice(more);
     let a = dir.path().join("a");
     ok(&train_args(from, a.to_str().unwrap(), &extra));
     // the encoder's 3 dimensions are in the observation exactly when asked
@@ -160,6 +185,21 @@ fn killed_and_resumed_matches_uninterrupted(he: bool) {
     assert!(mean(get("stg_start_frac")) > 0.1);
     assert!(mean(get("noised_start_frac")) > 0.1);
     assert!(mean(get("mean_n_masked")) > 0.0);
+    if more.contains(&"train.episode_length=200") {
+        // references were continued, the rate adapted, the critic warmed up
+        assert!(
+            mean(get("continued_frac")) > 0.5,
+            "{:?}",
+            get("continued_frac")
+        );
+        let lr = get("lr");
+        assert!(
+            lr.iter().any(|x| (x - lr[0]).abs() > 1e-12),
+            "lr never adapted: {lr:?}"
+        );
+        let pl = get("policy_loss");
+        assert!(pl[..3].iter().all(|x| x.is_finite()));
+    }
 }
 
 #[test]
@@ -287,6 +327,10 @@ fn episodes_end_by_falls_below_the_threshold_and_by_their_length() {
     let common = common_for(&run, dir.path().join("x"));
     let cfg = TrainConfig {
         skills: vec!["run".into(), "layup".into()],
+        // falls and lengths alone (tracking failures: their own test)
+        term_key_distance: 0.0,
+        term_object_distance: 0.0,
+        continuation: false,
         ..TrainConfig::default()
     };
     let s = setup(&common, &cfg).unwrap();
@@ -389,10 +433,14 @@ fn open_loop_reference_targets_score_above_zero_actions() {
                     } else {
                         w.set_joint_targets(&vec![0.0; r.joint_rot.len()]);
                     }
-                    w.step();
+                    let report = w.step_with_contacts();
                     let g = w.get_state();
-                    let c = w.contacts().reward_contacts(sk.contact_penalty_bodies());
                     let opts = RewardOptions::default();
+                    let c = report.reward_contacts(
+                        sk.contact_penalty_bodies(),
+                        opts.contact_detect,
+                        opts.contact_radius,
+                    );
                     sum += reward::sm_reward(&g, &r, &c, sk, &w8, &opts, Some(&prev)).total;
                     prev = g.joint_vel;
                     n += 1;
@@ -404,4 +452,197 @@ fn open_loop_reference_targets_score_above_zero_actions() {
     let (open, zero) = (score(true), score(false));
     eprintln!("mean SM reward over 30 steps: open loop {open:.3}, zero actions {zero:.3}");
     assert!(open > zero + 0.05, "open loop {open} vs zero {zero}");
+}
+
+#[test]
+fn references_continue_past_the_clip_end_from_the_seam_anchored_at_the_character() {
+    let (dir, run) = ingested("ballplay");
+    let common = common_for(&run, dir.path().join("x"));
+    let cfg = TrainConfig {
+        skills: vec!["run".into()],
+        episode_length: 200,
+        early_termination: false,
+        ..TrainConfig::default()
+    };
+    let s = setup(&common, &cfg).unwrap();
+    // every seam frame leaves a loop of at least seam_min_loop_s (30 frames)
+    for (c, seam) in s.seams.iter().enumerate() {
+        let seam = seam.expect("every BallPlay clip has a seam");
+        let f = &s.lib.frames[seam.to_clip as usize];
+        let end = if seam.to_clip as usize == c {
+            seam.last as usize
+        } else {
+            f.frames - 1
+        };
+        assert!(seam.to_frame as usize + 30 <= end, "{seam:?}");
+        assert!(seam.beta > 0.0 && seam.beta <= 1.0);
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let n = 4;
+    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+    env.set_recording(true);
+    let zeros = vec![0f32; n * env.act_dim()];
+    // per env: (reference, root xy, anchored reference root xy) per step
+    let mut trace: Vec<Vec<(Option<(u32, u32)>, [f32; 2], Option<[f32; 2]>)>> = vec![Vec::new(); n];
+    let mut ended = vec![false; n];
+    for _ in 0..200 {
+        let r = env.step(&zeros, &mut rng).unwrap();
+        let recs = env.take_recorded();
+        for e in 0..n {
+            if ended[e] {
+                continue;
+            }
+            let rec = recs[e].as_ref().unwrap();
+            let root = env.probes()[e].root;
+            let anchored = env.reference_of(e).map(|x| [x.root_pos[0], x.root_pos[1]]);
+            trace[e].push((rec.reference, [root[0], root[1]], anchored));
+            if r.terminated[e] || r.truncated[e] {
+                assert!(r.truncated[e], "no early termination here");
+                ended[e] = true;
+            }
+        }
+    }
+    let mut seams_seen = 0;
+    for t in &trace {
+        assert_eq!(t.len(), 200, "every episode lasts episode_length steps");
+        let mut prev: Option<(usize, (u32, u32))> = None;
+        for (k, step) in t.iter().enumerate() {
+            let Some((c1, f1)) = step.0 else { continue };
+            let Some((p, (c0, f0))) = prev.replace((k, (c1, f1))) else {
+                continue;
+            };
+            if (c1, f1) == (c0, f0 + 1) && k == p + 1 {
+                continue;
+            }
+            // a seam: the previous frame ends its clip, the next is the
+            // seam's frame (after N masked steps) or, with N = 0, the one after it
+            let seam = s.seams[c0 as usize].unwrap();
+            assert_eq!(f0, seam.last, "jumped from a frame before the clip's end");
+            assert_eq!(c1, seam.to_clip);
+            assert!(
+                f1 == seam.to_frame + 1 || f1 == seam.to_frame,
+                "{f1} vs {seam:?}"
+            );
+            // anchored at the character: the reference's root starts where
+            // the character stood at the seam (a frame of motion per step apart)
+            let Some(r) = step.2 else {
+                assert_eq!(
+                    k,
+                    t.len() - 1,
+                    "only the episode's last step has no reference left"
+                );
+                continue;
+            };
+            let at = t[p].1;
+            let d = ((r[0] - at[0]).powi(2) + (r[1] - at[1]).powi(2)).sqrt();
+            let allowed = 0.15 + 0.06 * (k - p - 1) as f32;
+            assert!(d < allowed, "continued reference {d} m from the character");
+            seams_seen += 1;
+        }
+    }
+    assert!(
+        seams_seen >= n,
+        "{seams_seen} seams in {n} 200-step episodes"
+    );
+    let st = env.take_stats();
+    assert_eq!(st.continuations, n as u64);
+}
+
+#[test]
+fn tracking_failures_end_episodes_above_the_fall_height() {
+    let (dir, run) = ingested("ballplay");
+    let common = common_for(&run, dir.path().join("x"));
+    let cfg = TrainConfig {
+        skills: vec!["run".into()],
+        term_key_distance: 0.05,
+        ..TrainConfig::default()
+    };
+    let s = setup(&common, &cfg).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let n = 4;
+    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+    let od = env.obs_dim();
+    let zeros = vec![0f32; n * env.act_dim()];
+    let mut lost_above = 0;
+    for _ in 0..40 {
+        let r = env.step(&zeros, &mut rng).unwrap();
+        for e in 0..n {
+            if r.terminated[e] && r.final_obs[e * od] >= 0.3 {
+                lost_above += 1;
+            }
+        }
+    }
+    let st = env.take_stats();
+    assert!(st.lost > 0 && lost_above > 0, "{st:?}");
+    // without the rule, zero actions end only by falls
+    let cfg = TrainConfig {
+        term_key_distance: 0.0,
+        term_object_distance: 0.0,
+        ..cfg
+    };
+    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+    for _ in 0..40 {
+        env.step(&zeros, &mut rng).unwrap();
+    }
+    assert_eq!(env.take_stats().lost, 0);
+    // a per-skill fall height: zero actions fall below 0.8 m long before 0.3 m
+    let cfg = TrainConfig {
+        fall_height_by_skill: [("run".to_string(), 0.8f32)].into_iter().collect(),
+        ..cfg
+    };
+    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+    let mut high = 0;
+    for _ in 0..40 {
+        let r = env.step(&zeros, &mut rng).unwrap();
+        for e in 0..n {
+            if r.terminated[e] {
+                let z = r.final_obs[e * od];
+                assert!(z < 0.8, "terminated standing at {z} m");
+                high += (z >= 0.3) as usize;
+            }
+        }
+    }
+    assert!(high > 0, "no fall between 0.3 and 0.8 m");
+}
+
+#[test]
+fn the_warm_start_fits_the_next_reference_pose() {
+    let (dir, run) = ingested("ballplay");
+    let common = common_for(&run, dir.path().join("x"));
+    let cfg = TrainConfig {
+        skills: vec!["run".into()],
+        ..TrainConfig::default()
+    };
+    let s = setup(&common, &cfg).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let env = environment(&s, &cfg, None, 2, &mut rng).unwrap();
+    let (obs, targets) = env.warm_start_data(&s.clips, 1, &mut rng).unwrap();
+    let rows = obs.len() / env.obs_dim();
+    assert_eq!(targets.len(), rows * env.act_dim());
+    // two copies (reference + one neighbour) of each usable frame
+    let usable: usize = s
+        .clips
+        .iter()
+        .map(|&c| {
+            let f = &s.lib.frames[c];
+            (2..f.frames.saturating_sub(1))
+                .filter(|&i| f.valid[i] && f.valid[i + 1])
+                .count()
+        })
+        .sum();
+    assert_eq!(rows, 2 * usable);
+    let ppo = cfg.ppo_config();
+    let mut agent = skillaug::rl::Agent::new(
+        env.obs_dim(),
+        env.act_dim(),
+        &ppo,
+        0,
+        &candle_core::Device::Cpu,
+    )
+    .unwrap();
+    let (before, after) = agent
+        .fit_mean(&obs, &targets, 30, 256, 1e-3, &mut rng)
+        .unwrap();
+    eprintln!("warm start: action mse {before:.4} -> {after:.4}");
+    assert!(after < 0.5 * before, "{before} -> {after}");
 }

@@ -4,6 +4,7 @@
 //! [`crate::motion::MotionLib`]; the stages write their results as tables.
 
 pub mod ats;
+pub mod seam;
 pub mod stf;
 pub mod stg;
 

@@ -335,26 +335,6 @@ fn normalize(q: quat::Quat) -> quat::Quat {
     q.map(|v| v / n)
 }
 
-/// The rotation vector of `e`'s rotation nearest to `like` (angle + 2πk).
-fn nearest_expmap(e: quat::Vec3, like: [f32; 3]) -> quat::Vec3 {
-    let th = quat::norm(e);
-    if th < 1e-12 {
-        return e;
-    }
-    let axis = e.map(|v| v / th);
-    let tau = 2.0 * std::f64::consts::PI;
-    let mut best = (f64::INFINITY, e);
-    for k in -2..=2 {
-        let a = th + tau * k as f64;
-        let v = axis.map(|x| x * a);
-        let d: f64 = (0..3).map(|i| (v[i] - like[i] as f64).powi(2)).sum();
-        if d < best.0 {
-            best = (d, v);
-        }
-    }
-    best.1
-}
-
 /// A state drawn from the ε-neighbourhood of `s` (see the module doc for what
 /// each group does). Draw order: root rotation, root position, root linear
 /// and angular velocity, joint exp-maps, joint velocities, then per object
@@ -370,7 +350,8 @@ pub fn perturb<R: Rng>(s: &State, eps: &Eps, noise: Noise, rng: &mut R) -> State
     if turned {
         let q = normalize(quat::mul(qd, s.root_rot.map(|v| v as f64)));
         o.root_rot = q.map(|v| v as f32);
-        o.root_rot_expmap = nearest_expmap(quat::to_expmap(q), s.root_rot_expmap).map(|v| v as f32);
+        o.root_rot_expmap =
+            quat::nearest_expmap(quat::to_expmap(q), s.root_rot_expmap).map(|v| v as f32);
     }
     let root = s.root_pos.map(|v| v as f64);
     for i in 0..3 {

@@ -90,6 +90,16 @@ impl Rule {
         })
     }
 
+    /// The root height above which the rule counts the character as
+    /// standing, m (0.7 for getting up and running without a ball, 0.5 for
+    /// the rest, reference §11.2).
+    pub fn stand_height(self) -> f32 {
+        match self {
+            Rule::Getup | Rule::RunNoObject => 0.7,
+            _ => 0.5,
+        }
+    }
+
     /// The trial length the reference evaluates this rule over, policy
     /// steps (600 = 10 s; ParaHome rules are bounded by their buffers).
     pub fn trial_steps(self) -> usize {
@@ -124,6 +134,7 @@ pub struct Judge {
     count: usize,
     early: bool,
     late_ok: bool,
+    down: Option<usize>,
 }
 
 impl Judge {
@@ -135,7 +146,14 @@ impl Judge {
             count: 0,
             early: false,
             late_ok: true,
+            down: None,
         }
+    }
+
+    /// The first step (1 = after the first policy step) whose root was at
+    /// or below the rule's [`Rule::stand_height`]; `None` while it stood.
+    pub fn down_step(&self) -> Option<usize> {
+        self.down
     }
 
     /// Steps seen.
@@ -146,6 +164,11 @@ impl Judge {
     /// Feed step n (= the number of steps fed so far).
     pub fn update(&mut self, p: &Probe) {
         let z = p.root[2];
+        if self.down.is_none()
+            && z.partial_cmp(&self.rule.stand_height()) != Some(std::cmp::Ordering::Greater)
+        {
+            self.down = Some(self.n + 1);
+        }
         let ball = p.obj.first().copied().unwrap_or([f32::NAN; 3]);
         let ball_v = p.obj_vel.first().copied().unwrap_or([0.0; 3]);
         let n = self.n;

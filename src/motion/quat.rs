@@ -42,6 +42,28 @@ pub fn to_expmap(q: Quat) -> Vec3 {
     [q[0] * k, q[1] * k, q[2] * k]
 }
 
+/// The rotation vector of `e`'s rotation nearest to `like`: the same axis
+/// with the angle moved by a multiple of 2 pi (k in -2..=2), so
+/// `e - 2 pi e/|e|` and `e` compare as equal rotations.
+pub fn nearest_expmap(e: Vec3, like: [f32; 3]) -> Vec3 {
+    let th = norm(e);
+    if th < 1e-12 {
+        return e;
+    }
+    let axis = e.map(|v| v / th);
+    let tau = 2.0 * std::f64::consts::PI;
+    let mut best = (f64::INFINITY, e);
+    for k in -2..=2 {
+        let a = th + tau * k as f64;
+        let v = axis.map(|x| x * a);
+        let d: f64 = (0..3).map(|i| (v[i] - like[i] as f64).powi(2)).sum();
+        if d < best.0 {
+            best = (d, v);
+        }
+    }
+    best.1
+}
+
 /// Hamilton product `a * b` (apply `b`, then `a`).
 pub fn mul(a: Quat, b: Quat) -> Quat {
     let [ax, ay, az, aw] = a;

@@ -21,6 +21,13 @@
 //! flag (ball-hands = flag, the other two = 0). The reference code's two
 //! node-level terms (any-body contact penalty, ball contact vs. flag) are the
 //! option [`ContactRule::Reference`]. ParaHome and Locomotion have r_cg = 1.
+//! The flag behaves as hand-ball proximity, so the simulation's ball-hands
+//! edge is by default a proximity test ([`ContactDetect`]); the touching
+//! pairs stay options.
+//!
+//! Root rotation: compared on the nearest exp-map branch by default
+//! ([`RootRot::Nearest`]); the reference code's raw component difference is
+//! [`RootRot::Raw`].
 //! The reference code's extra smoothness factor (§4.2) is the option
 //! [`RewardOptions::smoothness`], off by default.
 
@@ -184,14 +191,64 @@ impl Contacts {
     }
 }
 
+/// How the simulation decides that the ball touches a hand (the ball-hands
+/// edge of the contact graph, compared with the clip's contact flag).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ContactDetect {
+    /// A hand body's origin (wrist or finger joint) within
+    /// [`RewardOptions::contact_radius`] of the ball's centre at any physics
+    /// substep of the policy step: what the data's flag measures
+    /// (`skillaug check-contact`, docs/training.md).
+    #[default]
+    Proximity,
+    /// Touching collider pairs (pairs that push), at any physics substep of
+    /// the policy step.
+    Touch,
+    /// Touching collider pairs after the last substep only (the reference
+    /// code reads the post-step net contact forces, §4.2).
+    TouchLast,
+}
+
+/// How the rotation term compares the root exp-maps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RootRot {
+    /// The simulated root exp-map on the branch (angle + 2 pi k) nearest to
+    /// the reference's, so one rotation stored two ways costs nothing.
+    #[default]
+    Nearest,
+    /// Component differences of the raw exp-maps (reference code, §4.2: no
+    /// angle wrapping).
+    Raw,
+}
+
 /// Options of the SM reward.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RewardOptions {
     /// Contact-graph rule.
     pub contacts: ContactRule,
+    /// How the ball-hands contact is detected in the simulation.
+    pub contact_detect: ContactDetect,
+    /// Radius of [`ContactDetect::Proximity`], m.
+    pub contact_radius: f64,
+    /// How the root rotations are compared.
+    pub root_rot: RootRot,
     /// Multiply by the reference code's smoothness factor (needs the previous
     /// simulated joint velocities).
     pub smoothness: bool,
+}
+
+impl Default for RewardOptions {
+    fn default() -> Self {
+        RewardOptions {
+            contacts: ContactRule::Paper,
+            contact_detect: ContactDetect::Proximity,
+            contact_radius: 0.2,
+            root_rot: RootRot::Nearest,
+            smoothness: false,
+        }
+    }
 }
 
 /// Each factor of the SM reward and their product.
@@ -296,11 +353,27 @@ pub struct Errors {
     pub rel: f64,
 }
 
-/// Errors of `sim` against `reference`.
+/// Errors of `sim` against `reference`, raw root exp-maps.
 pub fn errors(sim: &State, reference: &State, sk: Skeleton) -> Errors {
+    errors_with(sim, reference, sk, RootRot::Raw)
+}
+
+/// Errors of `sim` against `reference` with the root rotation compared by
+/// `root`.
+pub fn errors_with(sim: &State, reference: &State, sk: Skeleton, root: RootRot) -> Errors {
+    let r = match root {
+        RootRot::Raw => mse(rotations(sim), rotations(reference)),
+        RootRot::Nearest => {
+            let e = quat::nearest_expmap(
+                sim.root_rot_expmap.map(|v| v as f64),
+                reference.root_rot_expmap,
+            );
+            mse(e.into_iter().chain(f(&sim.joint_rot)), rotations(reference))
+        }
+    };
     Errors {
         p: mse(key_points(sim, sk), key_points(reference, sk)),
-        r: mse(rotations(sim), rotations(reference)),
+        r,
         pv: mse(key_velocities(sim, sk), key_velocities(reference, sk)),
         rv: mse(f(&sim.joint_vel), f(&reference.joint_vel)),
         op: mse(f(&sim.obj_pos), f(&reference.obj_pos)),
@@ -346,7 +419,7 @@ pub fn sm_reward(
     opts: &RewardOptions,
     prev_joint_vel: Option<&[f32]>,
 ) -> SmTerms {
-    let e = errors(sim, reference, sk);
+    let e = errors_with(sim, reference, sk, opts.root_rot);
     let mut body = body_factor(&e, w);
     if opts.smoothness {
         if let Some(prev) = prev_joint_vel {
@@ -387,9 +460,10 @@ pub fn sm_reward(
 
 /// DM additive reward (Eq. 18): r_p + r_r + r_rv + r_op, each exp(-lambda
 /// MSE); a term whose weight is zero is left out (Locomotion has no r_op), so
-/// the range is [0, number of weighted terms].
-pub fn dm_reward(sim: &State, reference: &State, sk: Skeleton, w: &Weights) -> f64 {
-    let e = errors(sim, reference, sk);
+/// the range is [0, number of weighted terms]. `root` compares the root
+/// rotations as in [`sm_reward`].
+pub fn dm_reward(sim: &State, reference: &State, sk: Skeleton, w: &Weights, root: RootRot) -> f64 {
+    let e = errors_with(sim, reference, sk, root);
     [(w.p, e.p), (w.r, e.r), (w.rv, e.rv), (w.op, e.op)]
         .iter()
         .filter(|(wt, _)| *wt > 0.0)
@@ -423,7 +497,8 @@ pub fn heading(q: [f32; 4]) -> f64 {
     x[1].atan2(x[0])
 }
 
-fn wrap(a: f64) -> f64 {
+/// `a` wrapped to [-pi, pi), rad.
+pub fn wrap_angle(a: f64) -> f64 {
     let tau = 2.0 * std::f64::consts::PI;
     let mut a = (a + std::f64::consts::PI) % tau;
     if a < 0.0 {
@@ -436,7 +511,7 @@ fn wrap(a: f64) -> f64 {
 /// the pivot = `s`'s root xy; the new root xy).
 pub fn alignment(target: &State, s: &State, a: Align) -> (f64, [f64; 2], [f64; 2]) {
     let yaw = if a.yaw {
-        wrap(heading(target.root_rot) - heading(s.root_rot))
+        wrap_angle(heading(target.root_rot) - heading(s.root_rot))
     } else {
         0.0
     };

@@ -43,9 +43,25 @@ fn a_state_is_fully_similar_to_itself_and_scores_full_reward() {
     let c = Contacts::of_reference(&s);
     let r = sm_reward(&s, &s, &c, SK, &w, &RewardOptions::default(), None);
     assert!((r.total - 1.0).abs() < 1e-12, "{r:?}");
-    let dm = dm_reward(&s, &s, SK, &Weights::dm(DatasetKind::BallPlay));
+    let dm = dm_reward(
+        &s,
+        &s,
+        SK,
+        &Weights::dm(DatasetKind::BallPlay),
+        RootRot::Raw,
+    );
     assert!((dm - 4.0).abs() < 1e-12);
-    assert!((dm_reward(&s, &s, SK, &Weights::dm(DatasetKind::Locomotion)) - 3.0).abs() < 1e-12);
+    assert!(
+        (dm_reward(
+            &s,
+            &s,
+            SK,
+            &Weights::dm(DatasetKind::Locomotion),
+            RootRot::Raw
+        ) - 3.0)
+            .abs()
+            < 1e-12
+    );
 }
 
 #[test]
@@ -144,7 +160,7 @@ fn the_reference_contact_rule_penalises_body_contacts() {
     let w = Weights::sm(DatasetKind::BallPlay);
     let opts = RewardOptions {
         contacts: ContactRule::Reference,
-        smoothness: false,
+        ..RewardOptions::default()
     };
     let touching = Contacts {
         ball_hands: true,
@@ -153,6 +169,46 @@ fn the_reference_contact_rule_penalises_body_contacts() {
     };
     let r = sm_reward(&a, &a, &touching, SK, &w, &opts, None);
     assert!((r.cg - (-5.0f64).exp()).abs() < 1e-12);
+}
+
+#[test]
+fn the_root_rotation_is_compared_on_the_nearest_branch_unless_raw() {
+    // A heading near 180 degrees stored on the other branch: the same rotation.
+    let mut reference = state(6);
+    let e = [0.0f64, 0.0, 3.1];
+    reference.root_rot = quat::from_expmap(e).map(|v| v as f32);
+    reference.root_rot_expmap = e.map(|v| v as f32);
+    let mut sim = reference.clone();
+    let other = 3.1 - 2.0 * std::f64::consts::PI;
+    sim.root_rot_expmap = [0.0, 0.0, other as f32];
+    let w = Weights::sm(DatasetKind::BallPlay);
+    let c = Contacts::of_reference(&reference);
+    let near = sm_reward(
+        &sim,
+        &reference,
+        &c,
+        SK,
+        &w,
+        &RewardOptions::default(),
+        None,
+    );
+    assert!((near.body - 1.0).abs() < 1e-6, "{near:?}");
+    let raw_opts = RewardOptions {
+        root_rot: RootRot::Raw,
+        ..RewardOptions::default()
+    };
+    let raw = sm_reward(&sim, &reference, &c, SK, &w, &raw_opts, None);
+    // (2 pi)^2 / 159 components, times w_r = 20
+    let want = (-20.0 * (2.0 * std::f64::consts::PI).powi(2) / 159.0).exp();
+    assert!((raw.body - want).abs() < 1e-4, "{raw:?} vs {want}");
+    let dm_near = dm_reward(
+        &sim,
+        &reference,
+        SK,
+        &Weights::dm(DatasetKind::BallPlay),
+        RootRot::Nearest,
+    );
+    assert!((dm_near - 4.0).abs() < 1e-6);
 }
 
 #[test]
@@ -207,7 +263,7 @@ proptest! {
             prop_assert!(s > 0.0 && s <= 1.0, "{s}");
             let r = sm_reward(&a, &b, &Contacts::default(), SK, &w, &RewardOptions::default(), None);
             prop_assert!(r.total >= 0.0 && r.total <= 1.0);
-            let d = dm_reward(&a, &b, SK, &Weights::dm(kind));
+            let d = dm_reward(&a, &b, SK, &Weights::dm(kind), RootRot::Raw);
             prop_assert!((0.0..=4.0).contains(&d));
         }
     }

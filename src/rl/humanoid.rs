@@ -26,9 +26,19 @@
 //!   neither reward nor punish the value estimate; `masked-reward = "zero"`
 //!   gives 0 instead. They are left out of the reported mean rewards.
 //! - Episodes: at most T = `horizon` policy steps (60); a fall (root below
-//!   0.3 m after the first step) terminates except for class 0 (Getup),
-//!   §5.1; a reward-collapse termination is an option (off by default);
-//!   timeouts are truncations, bootstrapped by the trainer (§10.4).
+//!   0.3 m after the first step, or a per-skill height) terminates except
+//!   for class 0 (Getup), §5.1; so does a tracking failure when its
+//!   thresholds are set ([`tracking_lost`]: mean key-point distance to the
+//!   reference, ball too far from the root); a reward-collapse termination
+//!   is an option (off by default); timeouts are truncations, bootstrapped
+//!   by the trainer (§10.4). With `continue_steps` a reference that
+//!   reaches its clip's end continues from the clip's seam
+//!   ([`crate::augment::seam`]), anchored to where the character is, so the
+//!   episode runs its full length (the reference code stops at the clip's
+//!   end).
+//! - Contacts are read after every physics substep of a policy step
+//!   ([`World::step_with_contacts`]); the ball-hands edge of the reward
+//!   follows [`crate::reward::ContactDetect`].
 //! - Starts: [`StfSampler`] with the trainer's `p_e`/`p_n`. A start that is a
 //!   reference frame itself (β = 1) is followed by the next frame
 //!   ŝ_{j+1}: the paper's reward timing (Eq. 7 read literally would ask the
@@ -44,7 +54,8 @@
 
 use super::{StepResult, VecEnv};
 use crate::augment::ats::{Ats, AtsParams, AtsWeights, Update};
-use crate::augment::stf::{StartKind, StfParams, StfSampler, Trajectory};
+use crate::augment::seam::Seam;
+use crate::augment::stf::{StartKind, Step, StfParams, StfSampler, Trajectory};
 use crate::eval::rules::Probe;
 use crate::motion::{MotionLib, Skeleton, State};
 use crate::nn::he::{self, HistoryEncoder};
@@ -117,6 +128,20 @@ pub struct EnvConfig {
     /// turned about the vertical by U[-45°, 45°] and moved by up to 10 cm
     /// horizontally (paper Section 5; reference §11.3).
     pub object_perturb: bool,
+    /// Continue a reference that reaches its clip's last valid frame from
+    /// the clip's seam ([`crate::augment::seam`]) until the episode has
+    /// `continue_steps` policy steps (0 = stop at the clip's end, the
+    /// reference code's rule, §4.5).
+    pub continue_steps: usize,
+    /// End an episode when the mean distance of the 18 key points (root
+    /// and 17 key bodies) to the reference's exceeds this, m (0 = off).
+    pub term_key_distance: f64,
+    /// End an episode when object 0 is farther than this from the root
+    /// while the reference's is not (a shot's ball may leave), m (0 = off;
+    /// classes without an object never).
+    pub term_object_distance: f64,
+    /// Fall thresholds replacing `fall_height` for some skills, m.
+    pub fall_height_by_skill: std::collections::BTreeMap<String, f32>,
 }
 
 impl EnvConfig {
@@ -136,6 +161,10 @@ impl EnvConfig {
             condition: None,
             fixed_length: None,
             object_perturb: false,
+            continue_steps: 0,
+            term_key_distance: 0.0,
+            term_object_distance: 0.0,
+            fall_height_by_skill: Default::default(),
         }
     }
 }
@@ -295,6 +324,50 @@ fn perturb_objects(s: &mut State, rng: &mut ChaCha8Rng) {
     }
 }
 
+/// Whether a simulated state `s` has lost its reference: the mean distance
+/// of the 18 key points (root and 17 key bodies) to `reference`'s is above
+/// `key_distance` (m; only with a reference, 0 = off), or object 0 is
+/// farther than `object_distance` from the root (m; 0 = off) while the
+/// reference's object is not (so a shot's flight does not count).
+pub fn tracking_lost(
+    s: &State,
+    reference: Option<&State>,
+    sk: Skeleton,
+    key_distance: f64,
+    object_distance: f64,
+) -> bool {
+    if key_distance > 0.0 {
+        if let Some(r) = reference {
+            let (a, b) = (reward::key_points(s, sk), reward::key_points(r, sk));
+            let n = a.len() / 3;
+            let mean: f64 = a
+                .chunks_exact(3)
+                .zip(b.chunks_exact(3))
+                .map(|(p, q)| {
+                    ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+                })
+                .sum::<f64>()
+                / n.max(1) as f64;
+            if mean > key_distance {
+                return true;
+            }
+        }
+    }
+    if object_distance > 0.0 && s.obj_pos.len() >= 3 {
+        let dist = |x: &State| {
+            (0..3)
+                .map(|i| ((x.obj_pos[i] - x.root_pos[i]) as f64).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        };
+        let near_in_reference = reference.is_none_or(|r| dist(r) <= object_distance);
+        if near_in_reference && dist(s) > object_distance {
+            return true;
+        }
+    }
+    false
+}
+
 /// Push `f` as the newest frame of a `[k*C]` history.
 fn push_history(hist: &mut [f32], f: &[f32]) {
     let c = f.len();
@@ -303,9 +376,21 @@ fn push_history(hist: &mut [f32], f: &[f32]) {
     hist[n - c..].copy_from_slice(f);
 }
 
+/// A rigid move about the vertical applied to continued reference frames:
+/// [`reward::apply_alignment`]'s (yaw, pivot, to).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Anchor {
+    yaw: f64,
+    pivot: [f64; 2],
+    to: [f64; 2],
+}
+
 /// One running episode.
 struct Episode {
     traj: Trajectory,
+    /// Steps after the trajectory's own, continued past clip ends, each
+    /// with the move that anchors its reference frame.
+    cont: Vec<(Step, Anchor)>,
     class: u32,
     /// Training-reward weights of this episode (object terms off for classes 0/10).
     weights: Weights,
@@ -321,6 +406,24 @@ struct Episode {
     n: usize,
     actions: Vec<f32>,
     hist: Vec<f32>,
+}
+
+impl Episode {
+    /// Policy steps available: the trajectory's and the continued ones.
+    fn policy_steps(&self) -> usize {
+        self.traj.policy_steps() + self.cont.len()
+    }
+
+    /// Step `t` (0 = the start) and its anchor (`None` in the trajectory's
+    /// own steps).
+    fn step_at(&self, t: usize) -> Option<(Step, Option<Anchor>)> {
+        let own = self.traj.steps.len();
+        if t < own {
+            Some((self.traj.steps[t], None))
+        } else {
+            self.cont.get(t - own).map(|(s, a)| (*s, Some(*a)))
+        }
+    }
 }
 
 /// A running episode as the checkpoint stores it: its trajectory and the
@@ -349,8 +452,12 @@ pub struct RecordedStep {
 struct Outcome {
     reward: Option<f64>,
     sm: Option<f64>,
+    /// The SM factors (body, object, relative, contact) of an unmasked step.
+    sm_terms: Option<[f64; 4]>,
     fall: bool,
     collapse: bool,
+    /// Tracking failure: key points or the object too far.
+    lost: bool,
     timeout: bool,
     /// The post-step history feature (empty without an encoder).
     feature: Vec<f32>,
@@ -375,6 +482,13 @@ pub struct EnvStats {
     pub falls: u64,
     /// Of which ended by reward collapse.
     pub collapses: u64,
+    /// Of which ended by a tracking failure (key points or object too far).
+    pub lost: u64,
+    /// Sums of the SM factors body, object, relative, contact over the
+    /// unmasked steps.
+    pub sm_factor_sums: [f64; 4],
+    /// Finished episodes whose reference was continued past a clip's end.
+    pub continuations: u64,
     /// Sum of their lengths (policy steps).
     pub length_sum: u64,
     /// Starts by kind: rsi, rsi+noise, stg, stg+noise.
@@ -392,6 +506,17 @@ impl EnvStats {
     /// Mean unmasked SM reward per step.
     pub fn mean_sm(&self) -> f64 {
         self.sm_sum / (self.steps - self.masked).max(1) as f64
+    }
+
+    /// Mean of SM factor `k` (0 body, 1 object, 2 relative, 3 contact) per
+    /// unmasked step.
+    pub fn mean_sm_factor(&self, k: usize) -> f64 {
+        self.sm_factor_sums[k] / (self.steps - self.masked).max(1) as f64
+    }
+
+    /// Fraction of finished episodes ended by a tracking failure.
+    pub fn lost_rate(&self) -> f64 {
+        self.lost as f64 / self.episodes.max(1) as f64
     }
 
     /// Fraction of finished episodes that fell.
@@ -423,6 +548,10 @@ struct Ctx<'a> {
     act_dim: usize,
     /// Wrist bodies (ParaHome: right, left) for the success rules.
     wrists: Vec<usize>,
+    /// Seam of every clip (used with `continue_steps`).
+    seams: Vec<Option<Seam>>,
+    /// STF parameters (Eq. 20 at the seams).
+    stf: StfParams,
 }
 
 fn no_object_class(class: u32) -> bool {
@@ -485,6 +614,7 @@ impl Ctx<'_> {
             None => (Vec::new(), Vec::new()),
         };
         let ep = Episode {
+            cont: Vec::new(),
             class,
             weights,
             sm_weights,
@@ -513,42 +643,54 @@ impl Ctx<'_> {
     ) -> Outcome {
         ep.actions.extend_from_slice(a);
         w.apply_action(a);
-        w.step();
+        let contacts = w.step_with_contacts();
         let s = w.get_state();
-        let contacts = w.contacts();
         ep.t += 1;
-        let tracked = ep.traj.steps.get(ep.t).filter(|st| !st.masked);
-        let reference = tracked.and_then(|st| {
-            self.lib
-                .state(st.ref_clip? as usize, st.ref_frame? as usize)
-        });
-        let (reward, sm) = match &reference {
+        let tracked = ep.step_at(ep.t).filter(|(st, _)| !st.masked);
+        let reference = self.reference(ep, ep.t);
+        let opts = &self.cfg.reward;
+        let (reward, sm, sm_terms) = match &reference {
             Some(r) => {
-                let c = contacts.reward_contacts(self.sk.contact_penalty_bodies());
+                let c = contacts.reward_contacts(
+                    self.sk.contact_penalty_bodies(),
+                    opts.contact_detect,
+                    opts.contact_radius,
+                );
                 let prev = Some(ep.prev_joint_vel.as_slice());
-                let sm =
-                    reward::sm_reward(&s, r, &c, self.sk, &ep.sm_weights, &self.cfg.reward, prev)
-                        .total;
+                let terms = reward::sm_reward(&s, r, &c, self.sk, &ep.sm_weights, opts, prev);
+                let sm = terms.total;
                 let train = match self.cfg.method {
                     Method::Sm => sm,
-                    Method::Dm => reward::dm_reward(&s, r, self.sk, &ep.weights),
+                    Method::Dm => reward::dm_reward(&s, r, self.sk, &ep.weights, opts.root_rot),
                 };
-                (Some(train), Some(sm))
+                (
+                    Some(train),
+                    Some(sm),
+                    Some([terms.body, terms.object, terms.rel, terms.cg]),
+                )
             }
-            None => (None, None),
+            None => (None, None, None),
         };
         if let Some(r) = reward {
             ep.sum += r;
             ep.n += 1;
         }
-        let fall = self.cfg.early_termination
-            && ep.class != 0
-            && ep.t > 1
-            && s.root_pos[2] < self.cfg.fall_height;
+        let fall_height = self
+            .cfg
+            .fall_height_by_skill
+            .get(&ep.traj.target_skill)
+            .copied()
+            .unwrap_or(self.cfg.fall_height);
+        let fall =
+            self.cfg.early_termination && ep.class != 0 && ep.t > 1 && s.root_pos[2] < fall_height;
         let collapse = self.cfg.collapse_reward > 0.0
             && ep.t > 1
             && sm.is_some_and(|x| x < self.cfg.collapse_reward);
-        let timeout = ep.t >= self.cfg.fixed_length.unwrap_or(ep.traj.policy_steps());
+        let lost = self.cfg.early_termination && ep.t > 1 && self.lost(&s, reference.as_ref(), ep);
+        if !(fall || collapse || lost) {
+            self.extend(ep, &s);
+        }
+        let timeout = ep.t >= self.cfg.fixed_length.unwrap_or(ep.policy_steps());
         write_observation(w, &s, Some(&contacts), self.sk, ep.class, out);
         let probe = self.probe(&s);
         let feature = he.map_or_else(Vec::new, |h| h.feature(&s, self.sk));
@@ -556,19 +698,103 @@ impl Ctx<'_> {
             posture: s.posture(),
             reference: tracked
                 .filter(|_| reference.is_some())
-                .and_then(|st| st.ref_clip.zip(st.ref_frame)),
+                .and_then(|(st, _)| st.ref_clip.zip(st.ref_frame)),
         });
         ep.prev_joint_vel = s.joint_vel;
         Outcome {
             reward,
             sm,
+            sm_terms,
             fall,
             collapse,
+            lost,
             timeout,
             feature,
             probe,
             record,
         }
+    }
+
+    /// The reference state of `ep`'s step `t` (anchored when continued);
+    /// `None` for a masked step.
+    fn reference(&self, ep: &Episode, t: usize) -> Option<State> {
+        let (st, anchor) = ep.step_at(t).filter(|(st, _)| !st.masked)?;
+        let r = self
+            .lib
+            .state(st.ref_clip? as usize, st.ref_frame? as usize)?;
+        Some(match anchor {
+            Some(m) => reward::apply_alignment(&r, m.yaw, m.pivot, m.to),
+            None => r,
+        })
+    }
+
+    /// Whether `s` has lost its reference ([`tracking_lost`] with the
+    /// episode's thresholds; objects count only for classes with one).
+    fn lost(&self, s: &State, reference: Option<&State>, ep: &Episode) -> bool {
+        let c = &self.cfg;
+        let obj = if no_object_class(ep.class) {
+            0.0
+        } else {
+            c.term_object_distance
+        };
+        tracking_lost(s, reference, self.sk, c.term_key_distance, obj)
+    }
+
+    /// Continue `ep`'s reference past its clip's end (see
+    /// [`crate::augment::seam`]) when the step just taken was its last and
+    /// the episode may run longer: N masked steps by Eq. 20, then the seam's
+    /// frames, anchored to `s` (the character's state at the seam).
+    fn extend(&self, ep: &mut Episode, s: &State) {
+        let total = self.cfg.continue_steps;
+        if total == 0 || ep.t < ep.policy_steps() || ep.t >= total {
+            return;
+        }
+        let Some((last, _)) = ep.step_at(ep.t) else {
+            return;
+        };
+        let Some(clip) = last.ref_clip else { return };
+        let Some(seam) = self.seams.get(clip as usize).copied().flatten() else {
+            return;
+        };
+        let p = &self.stf;
+        let Some(n) = crate::augment::n_masked(seam.beta, p.tau, p.n_max, p.mask_rule) else {
+            return;
+        };
+        let (c2, j) = (seam.to_clip as usize, seam.to_frame as usize);
+        let Some(target) = self.lib.state(c2, j) else {
+            return;
+        };
+        let yaw =
+            reward::wrap_angle(reward::heading(s.root_rot) - reward::heading(target.root_rot));
+        let anchor = Anchor {
+            yaw,
+            pivot: [target.root_pos[0] as f64, target.root_pos[1] as f64],
+            to: [s.root_pos[0] as f64, s.root_pos[1] as f64],
+        };
+        let room = total - ep.t;
+        let inserted = Step {
+            masked: true,
+            ref_clip: None,
+            ref_frame: None,
+        };
+        let mut add: Vec<(Step, Anchor)> = vec![(inserted, anchor); (n as usize).min(room)];
+        let cf = &self.lib.frames[c2];
+        let first = if n == 0 { j + 1 } else { j };
+        let end = (0..cf.frames).rev().find(|f| cf.valid[*f]).unwrap_or(0);
+        for f in first..=end {
+            if add.len() >= room {
+                break;
+            }
+            add.push((
+                Step {
+                    masked: !cf.valid[f],
+                    ref_clip: Some(c2 as u32),
+                    ref_frame: Some(f as u32),
+                },
+                anchor,
+            ));
+        }
+        ep.cont.extend(add);
     }
 
     /// What the success rules see of `s`.
@@ -634,6 +860,9 @@ pub struct EnvParts<'a> {
     pub cfg: EnvConfig,
     /// Frozen history encoder (None: no embedding in the observation).
     pub he: Option<HeRuntime>,
+    /// Seam of every clip of `lib` ([`crate::augment::seam::seams`]); read
+    /// only with `cfg.continue_steps > 0`.
+    pub seams: Vec<Option<Seam>>,
 }
 
 impl<'a> HumanoidEnv<'a> {
@@ -667,6 +896,8 @@ impl<'a> HumanoidEnv<'a> {
             objects: parts.objects,
             sim: parts.sim,
             cfg: parts.cfg,
+            seams: parts.seams,
+            stf: parts.stf.clone(),
         };
         let mut env = HumanoidEnv {
             ats_weights: parts.ats.weights(&AtsParams::default()),
@@ -703,6 +934,97 @@ impl<'a> HumanoidEnv<'a> {
         Ok(env)
     }
 
+    /// Behaviour-cloning data for a warm start of the policy mean: for
+    /// every frame f of `clips` that can start an episode (valid, in
+    /// [2, F - 2]) and whose next frame is valid, the observation of the
+    /// reference state ŝ_f set into a fresh world (with the history
+    /// embedding of the frames before it), plus `copies` observations of
+    /// states drawn from its ε-neighbourhood (the STF radii of the clip's
+    /// class, [`crate::augment::stf::perturb`], bodies by forward
+    /// kinematics); the target of each is the action whose PD targets are
+    /// the joint rotations of ŝ_{f+1} (a = e / π, clamped to [-1, 1]; the
+    /// simulator maps a to π a, reference §2.3). Returns (`N * obs_dim`
+    /// observations, `N * act_dim` targets).
+    pub fn warm_start_data(
+        &self,
+        clips: &[usize],
+        copies: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(Vec<f32>, Vec<f32>)> {
+        use crate::augment::stf::{perturb, refresh_bodies};
+        let lib = self.ctx.lib;
+        let mut starts = Vec::new();
+        for &c in clips {
+            let row = &lib.clips[c];
+            let allowed = crate::augment::ats::start_frames(&lib.frames[c]);
+            let eps = *self.stf.eps_for(row.class as u32);
+            for f in (0..allowed.len()).filter(|f| allowed[*f]) {
+                let (Some(s), Some(next)) = (lib.state(c, f), lib.state(c, f + 1)) else {
+                    continue;
+                };
+                let target: Vec<f32> = next
+                    .joint_rot
+                    .iter()
+                    .map(|e| (e / std::f32::consts::PI).clamp(-1.0, 1.0))
+                    .collect();
+                for k in 0..=copies {
+                    let start = if k == 0 {
+                        s.clone()
+                    } else {
+                        let mut o = perturb(&s, &eps, self.stf.noise, rng);
+                        refresh_bodies(&s, &mut o, &self.ctx.model);
+                        o
+                    };
+                    let traj = Trajectory {
+                        target_skill: row.skill.clone(),
+                        condition: row.class as u32,
+                        start,
+                        start_kind: StartKind::Rsi,
+                        noised: k > 0,
+                        fallback: false,
+                        centroid: (c as u32, f as u32),
+                        connect: (c as u32, f as u32),
+                        beta: 1.0,
+                        n_masked: 0,
+                        steps: vec![Step {
+                            masked: false,
+                            ref_clip: None,
+                            ref_frame: None,
+                        }],
+                    };
+                    starts.push((traj, target.clone()));
+                }
+            }
+        }
+        ensure!(
+            !starts.is_empty(),
+            "warm start: no frame of the training clips has a valid next frame"
+        );
+        let ctx = &self.ctx;
+        let he = self.he.as_ref();
+        let rows = starts
+            .into_par_iter()
+            .map(|(t, target)| {
+                let key = (t.connect.0 as usize, t.connect.1 as usize);
+                let ((_, ep, mut row), _) = ctx.start(t, key, he)?;
+                if let Some(h) = he {
+                    let emb = h.encode(&[ep.hist.as_slice()])?;
+                    let d = h.dim();
+                    let od = row.len();
+                    row[od - d..].copy_from_slice(&emb[0]);
+                }
+                Ok((row, target))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut obs = Vec::with_capacity(rows.len() * ctx.obs_dim);
+        let mut targets = Vec::with_capacity(rows.len() * ctx.act_dim);
+        for (o, t) in rows {
+            obs.extend(o);
+            targets.extend(t);
+        }
+        Ok((obs, targets))
+    }
+
     /// Recompute the start weights from the ATS table (uniform when ATS is off).
     pub fn refresh_ats(&mut self) {
         let p = if self.ctx.cfg.ats {
@@ -733,6 +1055,14 @@ impl<'a> HumanoidEnv<'a> {
     /// (for an environment whose episode ended, its final state).
     pub fn probes(&self) -> &[Probe] {
         &self.probes
+    }
+
+    /// The reference state environment `e`'s running episode is scored
+    /// against at its current step (continued references anchored; `None`
+    /// when masked or right after a reset, before the first step).
+    pub fn reference_of(&self, e: usize) -> Option<State> {
+        let ep = self.eps.get(e)?;
+        (ep.t > 0).then(|| self.ctx.reference(ep, ep.t)).flatten()
     }
 
     /// The SM reward of each environment at the last step (`None` when masked).
@@ -847,8 +1177,9 @@ impl<'a> HumanoidEnv<'a> {
         let ad = self.ctx.act_dim;
         let od = self.ctx.obs_dim;
         for r in &recs {
+            let longest = r.traj.policy_steps().max(self.ctx.cfg.continue_steps);
             ensure!(
-                r.actions.len() % ad == 0 && r.actions.len() / ad <= r.traj.policy_steps(),
+                r.actions.len() % ad == 0 && r.actions.len() / ad <= longest,
                 "checkpoint episode with {} action values does not fit its trajectory",
                 r.actions.len()
             );
@@ -910,6 +1241,11 @@ impl<'a> HumanoidEnv<'a> {
                 Some(r) => {
                     self.stats.reward_sum += r;
                     self.stats.sm_sum += o.sm.unwrap_or(0.0);
+                    if let Some(t) = o.sm_terms {
+                        for (acc, v) in self.stats.sm_factor_sums.iter_mut().zip(t) {
+                            *acc += v;
+                        }
+                    }
                     r as f32
                 }
                 None => {
@@ -988,7 +1324,7 @@ impl VecEnv for HumanoidEnv<'_> {
         };
         let mut done = Vec::new();
         for (e, o) in outs.iter().enumerate() {
-            let term = o.fall || o.collapse;
+            let term = o.fall || o.collapse || o.lost;
             if term || o.timeout {
                 res.terminated[e] = term;
                 res.truncated[e] = !term;
@@ -999,6 +1335,8 @@ impl VecEnv for HumanoidEnv<'_> {
                 self.stats.length_sum += ep.t as u64;
                 self.stats.falls += o.fall as u64;
                 self.stats.collapses += (o.collapse && !o.fall) as u64;
+                self.stats.lost += (o.lost && !o.fall && !o.collapse) as u64;
+                self.stats.continuations += (!ep.cont.is_empty()) as u64;
                 if ep.n > 0 {
                     let (c, f) = ep.ats_key;
                     self.ats
@@ -1023,5 +1361,44 @@ impl VecEnv for HumanoidEnv<'_> {
             self.embed_and_push(&feats)?;
         }
         Ok(res)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn state(root: [f32; 3], ball: [f32; 3]) -> State {
+        let sk = Skeleton::MocapHumanoid;
+        let mut s = State {
+            root_pos: root,
+            body_pos: vec![0.0; 3 * sk.n_bodies()],
+            obj_pos: ball.to_vec(),
+            ..State::default()
+        };
+        for b in s.body_pos.chunks_exact_mut(3) {
+            b.copy_from_slice(&root);
+        }
+        s
+    }
+
+    #[test]
+    fn tracking_is_lost_by_key_points_or_a_ball_the_reference_keeps_close() {
+        let sk = Skeleton::MocapHumanoid;
+        let r = state([0.0, 0.0, 1.0], [0.5, 0.0, 0.5]);
+        // 0.4 m off everywhere: lost at 0.3, kept at 0.5 and without the rule
+        let s = state([0.4, 0.0, 1.0], [0.9, 0.0, 0.5]);
+        assert!(tracking_lost(&s, Some(&r), sk, 0.3, 0.0));
+        assert!(!tracking_lost(&s, Some(&r), sk, 0.5, 0.0));
+        assert!(!tracking_lost(&s, Some(&r), sk, 0.0, 0.0));
+        // masked step: no key-point test
+        assert!(!tracking_lost(&s, None, sk, 0.3, 0.0));
+        // the ball 2 m from the root while the reference holds it
+        let far = state([0.0, 0.0, 1.0], [2.0, 0.0, 0.5]);
+        assert!(tracking_lost(&far, Some(&r), sk, 0.0, 1.5));
+        assert!(!tracking_lost(&far, Some(&r), sk, 0.0, 2.5));
+        // a shot: the reference's ball has left too
+        let shot = state([0.0, 0.0, 1.0], [3.0, 0.0, 3.0]);
+        assert!(!tracking_lost(&far, Some(&shot), sk, 0.0, 1.5));
     }
 }

@@ -28,8 +28,18 @@
 //!   train mode (24 merges of the same samples per epoch); one merge per
 //!   batch gives the same mean and a variance weighted per sample rather
 //!   than per pass, and keeps the normaliser fixed within an update.
-//! * value normalisation (rl_games `normalize_value`) is not implemented:
-//!   the critic predicts raw returns.
+//! * value normalisation (`normalize_value`; off by default, on in the
+//!   reference configs through rl_games's `normalize_value`): the critic predicts
+//!   returns standardised by a running mean and variance; rollout and
+//!   bootstrap values are de-standardised (input clamped to ±5); before each
+//!   update the statistics merge the stored values, then the returns, and the
+//!   value loss is computed in standardised units (reference §10.3).
+//! * adaptive learning rate (`kl_threshold`, off by default): after every
+//!   mini-epoch the mean approximate KL of its minibatches sets the rate,
+//!   divided by 1.5 above twice the threshold and multiplied by 1.5 below
+//!   half of it, kept within [`PpoConfig::lr_min`, `PpoConfig::lr_max`]
+//!   (rl_games `AdaptiveScheduler`, `rl_games/common/schedulers.py`). The
+//!   current rate is saved with the agent, so a resume continues with it.
 //!
 //! Adam is written here with explicit first/second-moment tensors and step
 //! count because candle-nn's `AdamW` keeps its moments private, so they
@@ -100,6 +110,16 @@ pub struct PpoConfig {
     pub norm_after_update: bool,
     /// Policy head weights drawn from `U(-b, b)`; `None`: PyTorch default.
     pub policy_out_bound: Option<f64>,
+    /// Standardise the value targets with running statistics (see the
+    /// module doc).
+    pub normalize_value: bool,
+    /// Adaptive learning rate around this KL (rl_games uses 0.008); `None`:
+    /// constant `lr`.
+    pub kl_threshold: Option<f64>,
+    /// Lower bound of the adaptive rate.
+    pub lr_min: f64,
+    /// Upper bound of the adaptive rate.
+    pub lr_max: f64,
 }
 
 impl Default for PpoConfig {
@@ -123,6 +143,10 @@ impl Default for PpoConfig {
             normalize_advantages: true,
             norm_after_update: false,
             policy_out_bound: Some(0.01),
+            normalize_value: false,
+            kl_threshold: None,
+            lr_min: 1e-6,
+            lr_max: 1e-2,
         }
     }
 }
@@ -143,7 +167,14 @@ impl PpoConfig {
             self.epochs > 0 && self.minibatch > 0,
             "ppo: epochs and minibatch must be > 0"
         );
-        ensure!(self.lr > 0.0, "ppo: lr must be > 0");
+        ensure!(self.lr > 0.0 && self.lr.is_finite(), "ppo: lr must be > 0");
+        if let Some(k) = self.kl_threshold {
+            ensure!(k > 0.0 && k.is_finite(), "ppo: kl_threshold must be > 0");
+            ensure!(
+                self.lr_min > 0.0 && self.lr_min <= self.lr_max && self.lr_max.is_finite(),
+                "ppo: need 0 < lr_min <= lr_max"
+            );
+        }
         ensure!(
             self.hidden.iter().all(|&h| h > 0),
             "ppo: hidden sizes must be > 0"
@@ -182,6 +213,7 @@ impl Adam {
         grads: &candle_core::backprop::GradStore,
         lr: f64,
         eps: f64,
+        skip_missing: bool,
     ) -> Result<()> {
         const B1: f64 = 0.9;
         const B2: f64 = 0.999;
@@ -191,6 +223,9 @@ impl Adam {
         let bc2 = 1.0 - B2.powi(t);
         for (k, (name, var)) in vars.iter().enumerate() {
             let Some(g) = grads.get(var.as_tensor()) else {
+                if skip_missing {
+                    continue;
+                }
                 bail!("ppo: no gradient for `{name}`");
             };
             self.m[k] = (self.m[k].affine(B1, 0.0)? + g.affine(1.0 - B1, 0.0)?)?;
@@ -236,6 +271,8 @@ pub struct UpdateStats {
     pub return_mean: f64,
     /// Number of gradient steps taken.
     pub steps: usize,
+    /// Learning rate after the update (the adaptive rate when on).
+    pub lr: f64,
 }
 
 /// One step of `N` environments, as pushed into a [`Rollout`]. Slices are
@@ -440,6 +477,12 @@ struct Sidecar {
     config: PpoConfig,
     adam_step: u64,
     norm_count: f64,
+    /// Learning rate in use (the adaptive rate); absent in older files.
+    #[serde(default)]
+    lr_now: Option<f64>,
+    /// Value normaliser (mean, var, count); absent without it.
+    #[serde(default)]
+    value_norm: Option<(f64, f64, f64)>,
 }
 
 /// The PPO learner: policy and value networks, optimiser and normaliser.
@@ -454,6 +497,10 @@ pub struct Agent {
     vars: Vec<(String, Var)>,
     adam: Adam,
     norm: RunningNorm,
+    /// Running statistics of the value targets (used with `normalize_value`).
+    vnorm: RunningNorm,
+    /// The learning rate in use (adapted with `kl_threshold`).
+    lr_now: f64,
     dev: Device,
 }
 
@@ -500,8 +547,31 @@ impl Agent {
             vars,
             adam,
             norm: RunningNorm::new(obs_dim),
+            vnorm: RunningNorm::new(1),
+            lr_now: cfg.lr,
             dev: dev.clone(),
         })
+    }
+
+    /// The learning rate the next update uses.
+    pub fn learning_rate(&self) -> f64 {
+        self.lr_now
+    }
+
+    /// Critic outputs to values in return units.
+    fn denorm_values(&self, v: Vec<f32>) -> Vec<f32> {
+        if !self.cfg.normalize_value {
+            return v;
+        }
+        let (m, sd) = (
+            self.vnorm.mean[0],
+            (self.vnorm.var[0] + super::norm::NORM_EPS).sqrt(),
+        );
+        v.into_iter()
+            .map(|x| {
+                ((x as f64).clamp(-super::norm::NORM_CLIP, super::norm::NORM_CLIP) * sd + m) as f32
+            })
+            .collect()
     }
 
     /// The configuration.
@@ -556,7 +626,7 @@ impl Agent {
     /// V(s) for a batch of raw observations.
     pub fn values(&self, obs: &[f32]) -> Result<Vec<f32>> {
         let x = self.obs_tensor(obs)?;
-        Ok(self.vf.forward(&x)?.flatten_all()?.to_vec1::<f32>()?)
+        Ok(self.denorm_values(self.vf.forward(&x)?.flatten_all()?.to_vec1::<f32>()?))
     }
 
     /// The policy mean μ(s) for a batch of raw observations.
@@ -576,7 +646,7 @@ impl Agent {
     ) -> Result<ActOut> {
         let x = self.obs_tensor(obs)?;
         let mu = self.pi.forward(&x)?.flatten_all()?.to_vec1::<f32>()?;
-        let values = self.vf.forward(&x)?.flatten_all()?.to_vec1::<f32>()?;
+        let values = self.denorm_values(self.vf.forward(&x)?.flatten_all()?.to_vec1::<f32>()?);
         let d = self.act_dim;
         let mut z = vec![0f64; mu.len()];
         if !deterministic {
@@ -616,6 +686,18 @@ impl Agent {
     /// One PPO update on a finished rollout; the minibatch permutations are
     /// drawn from `rng`.
     pub fn update<R: Rng + ?Sized>(&mut self, ro: &Rollout, rng: &mut R) -> Result<UpdateStats> {
+        self.update_with(ro, rng, false)
+    }
+
+    /// [`Agent::update`]; with `critic_only` the policy loss and the bounds
+    /// loss are left out, so only the value network learns (the critic
+    /// warm-up after a behaviour-cloned start).
+    pub fn update_with<R: Rng + ?Sized>(
+        &mut self,
+        ro: &Rollout,
+        rng: &mut R,
+        critic_only: bool,
+    ) -> Result<UpdateStats> {
         ensure!(
             ro.obs_dim == self.obs_dim && ro.act_dim == self.act_dim,
             "ppo: rollout sizes differ from the agent's"
@@ -644,7 +726,14 @@ impl Agent {
         let obs = self.obs_tensor(&ro.obs)?;
         let act = Tensor::from_slice(&ro.actions, (b, self.act_dim), &dev)?;
         let old_logp = Tensor::from_slice(&ro.logp, b, &dev)?;
-        let old_v = Tensor::from_slice(&ro.values, b, &dev)?;
+        let (old_v, ret) = if self.cfg.normalize_value {
+            self.vnorm.update(&ro.values)?;
+            self.vnorm.update(&ret)?;
+            (self.vnorm.normalize(&ro.values), self.vnorm.normalize(&ret))
+        } else {
+            (ro.values.clone(), ret)
+        };
+        let old_v = Tensor::from_vec(old_v, b, &dev)?;
         let adv = Tensor::from_vec(adv, b, &dev)?;
         let ret = Tensor::from_vec(ret, b, &dev)?;
         let mb = self.cfg.minibatch.min(b);
@@ -654,6 +743,7 @@ impl Agent {
         let mut perm: Vec<u32> = (0..b as u32).collect();
         for _ in 0..self.cfg.epochs {
             perm.shuffle(rng);
+            let (mut epoch_kl, mut epoch_n) = (0.0, 0usize);
             for chunk in perm.chunks(mb) {
                 let idx = Tensor::from_slice(chunk, chunk.len(), &dev)?;
                 let x = obs.index_select(&idx, 0)?;
@@ -684,11 +774,20 @@ impl Agent {
                 let hi = mu.affine(1.0, -soft)?.relu()?.sqr()?;
                 let lo = mu.affine(-1.0, -soft)?.relu()?.sqr()?;
                 let bl = (hi + lo)?.sum(D::Minus1)?.mean_all()?;
-                let total = ((&pl + vl.affine(self.cfg.critic_coef, 0.0)?)?
-                    + bl.affine(self.cfg.bounds_coef, 0.0)?)?;
+                let total = if critic_only {
+                    vl.affine(self.cfg.critic_coef, 0.0)?
+                } else {
+                    ((&pl + vl.affine(self.cfg.critic_coef, 0.0)?)?
+                        + bl.affine(self.cfg.bounds_coef, 0.0)?)?
+                };
                 let grads = total.backward()?;
-                self.adam
-                    .apply(&self.vars, &grads, self.cfg.lr, self.cfg.adam_eps)?;
+                self.adam.apply(
+                    &self.vars,
+                    &grads,
+                    self.lr_now,
+                    self.cfg.adam_eps,
+                    critic_only,
+                )?;
                 let lr_v = log_ratio.to_vec1::<f32>()?;
                 let n = lr_v.len() as f64;
                 stats.clip_frac += lr_v
@@ -696,12 +795,23 @@ impl Agent {
                     .filter(|&&l| ((l as f64).exp() - 1.0).abs() > eps)
                     .count() as f64
                     / n;
-                stats.approx_kl += lr_v.iter().map(|&l| 0.5 * (l as f64).powi(2)).sum::<f64>() / n;
+                let kl = lr_v.iter().map(|&l| 0.5 * (l as f64).powi(2)).sum::<f64>() / n;
+                stats.approx_kl += kl;
+                epoch_kl += kl;
+                epoch_n += 1;
                 stats.policy_loss += pl.to_scalar::<f32>()? as f64;
                 stats.value_loss += vl.to_scalar::<f32>()? as f64;
                 stats.bounds_loss += bl.to_scalar::<f32>()? as f64;
                 stats.total_loss += total.to_scalar::<f32>()? as f64;
                 stats.steps += 1;
+            }
+            if let (Some(k), false) = (self.cfg.kl_threshold, critic_only) {
+                let kl = epoch_kl / epoch_n.max(1) as f64;
+                if kl > 2.0 * k {
+                    self.lr_now = (self.lr_now / 1.5).max(self.cfg.lr_min);
+                } else if kl < 0.5 * k {
+                    self.lr_now = (self.lr_now * 1.5).min(self.cfg.lr_max);
+                }
             }
         }
         if self.cfg.normalize_obs && self.cfg.norm_after_update {
@@ -714,7 +824,56 @@ impl Agent {
         stats.value_loss /= k;
         stats.bounds_loss /= k;
         stats.total_loss /= k;
+        stats.lr = self.lr_now;
         Ok(stats)
+    }
+
+    /// Behaviour cloning of the policy mean: merge `obs` (raw, `N *
+    /// obs_dim`) into the observation statistics, then fit μ(obs) to
+    /// `targets` (`N * act_dim`) by mean squared error over `epochs` passes
+    /// of shuffled minibatches with a separate Adam at rate `lr` (the PPO
+    /// optimiser's moments stay untouched). Returns the mean squared error
+    /// per action value before and after.
+    pub fn fit_mean<R: Rng + ?Sized>(
+        &mut self,
+        obs: &[f32],
+        targets: &[f32],
+        epochs: usize,
+        minibatch: usize,
+        lr: f64,
+        rng: &mut R,
+    ) -> Result<(f64, f64)> {
+        let n = obs.len() / self.obs_dim;
+        ensure!(
+            n > 0 && obs.len() == n * self.obs_dim && targets.len() == n * self.act_dim,
+            "fit_mean: {} observation and {} target values do not make rows",
+            obs.len(),
+            targets.len()
+        );
+        if self.cfg.normalize_obs {
+            self.norm.update(obs)?;
+        }
+        let dev = self.dev.clone();
+        let x = self.obs_tensor(obs)?;
+        let y = Tensor::from_slice(targets, (n, self.act_dim), &dev)?;
+        let mse = |agent: &Agent| -> Result<f64> {
+            let mu = agent.pi.forward(&x)?;
+            Ok((mu - &y)?.sqr()?.mean_all()?.to_scalar::<f32>()? as f64)
+        };
+        let before = mse(self)?;
+        let mut adam = Adam::new(&self.vars)?;
+        let mut perm: Vec<u32> = (0..n as u32).collect();
+        for _ in 0..epochs {
+            perm.shuffle(rng);
+            for chunk in perm.chunks(minibatch.max(1)) {
+                let idx = Tensor::from_slice(chunk, chunk.len(), &dev)?;
+                let mu = self.pi.forward(&x.index_select(&idx, 0)?)?;
+                let loss = (mu - y.index_select(&idx, 0)?)?.sqr()?.mean_all()?;
+                let grads = loss.backward()?;
+                adam.apply(&self.vars, &grads, lr, self.cfg.adam_eps, true)?;
+            }
+        }
+        Ok((before, mse(self)?))
     }
 
     /// The JSON sidecar's path for checkpoint `path`: `path` with extension
@@ -749,6 +908,11 @@ impl Agent {
             config: self.cfg.clone(),
             adam_step: self.adam.step,
             norm_count: self.norm.count,
+            lr_now: Some(self.lr_now),
+            value_norm: self
+                .cfg
+                .normalize_value
+                .then(|| (self.vnorm.mean[0], self.vnorm.var[0], self.vnorm.count)),
         };
         let sp = Self::sidecar_path(path);
         let tmp_w = tmp_name(path);
@@ -802,6 +966,16 @@ impl Agent {
             agent.norm.dim() == side.obs_dim,
             "checkpoint: normaliser size"
         );
+        if let Some(lr) = side.lr_now {
+            agent.lr_now = lr;
+        }
+        if let Some((m, v, c)) = side.value_norm {
+            agent.vnorm = RunningNorm {
+                mean: vec![m],
+                var: vec![v],
+                count: c,
+            };
+        }
         Ok(agent)
     }
 }

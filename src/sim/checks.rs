@@ -131,3 +131,61 @@ pub fn stress(
     out.mean_gap = (gap_sum / (policy_steps * n).max(1) as f64) as f32;
     Ok(out)
 }
+
+/// How well a simulated contact rule reproduces a clip's contact flag.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ContactAgreement {
+    /// Valid frames compared.
+    pub frames: usize,
+    /// Frames whose flag is set.
+    pub flagged: usize,
+    /// Per frame: the flag, the smallest hand-to-ball distance of the
+    /// state set into the world (m), whether a hand touched the ball at any
+    /// substep of one policy step from it (PD targets = the frame's pose),
+    /// and whether it touched after the last substep.
+    pub rows: Vec<(bool, f32, bool, bool)>,
+}
+
+impl ContactAgreement {
+    /// Fraction of frames where `rule(row)` equals the flag.
+    pub fn agreement(&self, rule: impl Fn(&(bool, f32, bool, bool)) -> bool) -> f64 {
+        let ok = self.rows.iter().filter(|r| rule(r) == r.0).count();
+        ok as f64 / self.rows.len().max(1) as f64
+    }
+
+    /// Agreement of the proximity rule at `radius`, m.
+    pub fn proximity(&self, radius: f32) -> f64 {
+        self.agreement(|r| r.1 < radius)
+    }
+}
+
+/// Every valid frame of clip `clip` set into a world with `objects`
+/// (object 0 is the ball the flag refers to): the rules' verdicts beside
+/// the flag (see [`ContactAgreement`]). `None` for a clip without objects.
+pub fn contact_agreement(
+    lib: &MotionLib,
+    clip: usize,
+    model: &Model,
+    objects: &[ObjectSpec],
+    opts: &SimOptions,
+) -> Result<Option<ContactAgreement>> {
+    let f = &lib.frames[clip];
+    if f.n_objects == 0 || objects.is_empty() {
+        return Ok(None);
+    }
+    let mut rows = Vec::new();
+    for i in 0..f.frames {
+        let Some(s) = f.state(i) else { continue };
+        let mut w = World::new(model, objects, opts)?;
+        w.set_state(&s)?;
+        w.set_joint_targets(&s.joint_rot);
+        let near = w.hand_distance(0);
+        let c = w.step_with_contacts();
+        rows.push((s.contact, near, c.object_hands_any[0], c.object_hands[0]));
+    }
+    Ok(Some(ContactAgreement {
+        frames: rows.len(),
+        flagged: rows.iter().filter(|r| r.0).count(),
+        rows,
+    }))
+}

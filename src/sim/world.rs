@@ -53,7 +53,7 @@ use super::objects::ObjectSpec;
 use super::rot;
 use crate::motion::clip::AngvelFrame;
 use crate::motion::state::State;
-use crate::reward::Contacts;
+use crate::reward::{ContactDetect, Contacts};
 use anyhow::{bail, Result};
 use rapier3d::math::{Pose, Rotation, Vector};
 use rapier3d::prelude::*;
@@ -213,17 +213,55 @@ pub struct ContactReport {
     pub object_body: Vec<bool>,
     /// A hand touches a non-hand body of the humanoid.
     pub body_hands: bool,
+    /// `object_hands` at any physics substep of the policy step
+    /// ([`World::step_with_contacts`]; else equal to `object_hands`).
+    pub object_hands_any: Vec<bool>,
+    /// `object_body` at any substep.
+    pub object_body_any: Vec<bool>,
+    /// `body_hands` at any substep.
+    pub body_hands_any: bool,
+    /// Smallest distance from a hand body's origin (wrist or finger joint)
+    /// to object `k`'s centre over the substeps, m.
+    pub object_hand_distance: Vec<f32>,
 }
 
 impl ContactReport {
     /// The reward's contact indicators (reference §4.2, paper Eq. 16):
-    /// object 0 against hands and body, hands against body, and whether any
-    /// of `penalty_bodies` feels a force component of at least 0.1 N.
-    pub fn reward_contacts(&self, penalty_bodies: &[usize]) -> Contacts {
+    /// object 0 against hands (by `detect`; `radius` in m for the
+    /// proximity rule) and body, hands against body (touching at any
+    /// substep, or at the last one for [`ContactDetect::TouchLast`]), and
+    /// whether any of `penalty_bodies` feels a force component of at least
+    /// 0.1 N after the last substep.
+    pub fn reward_contacts(
+        &self,
+        penalty_bodies: &[usize],
+        detect: ContactDetect,
+        radius: f64,
+    ) -> Contacts {
+        let first = |v: &[bool]| v.first().copied().unwrap_or(false);
+        let (ball_hands, ball_body, body_hands) = match detect {
+            ContactDetect::Proximity => (
+                self.object_hand_distance
+                    .first()
+                    .is_some_and(|d| (*d as f64) < radius),
+                first(&self.object_body_any),
+                self.body_hands_any,
+            ),
+            ContactDetect::Touch => (
+                first(&self.object_hands_any),
+                first(&self.object_body_any),
+                self.body_hands_any,
+            ),
+            ContactDetect::TouchLast => (
+                first(&self.object_hands),
+                first(&self.object_body),
+                self.body_hands,
+            ),
+        };
         Contacts {
-            ball_hands: self.object_hands.first().copied().unwrap_or(false),
-            ball_body: self.object_body.first().copied().unwrap_or(false),
-            body_hands: self.body_hands,
+            ball_hands,
+            ball_body,
+            body_hands,
             penalty_bodies: penalty_bodies
                 .iter()
                 .any(|&b| self.body_force[b].iter().any(|f| f.abs() >= 0.1)),
@@ -637,6 +675,45 @@ impl World {
         }
     }
 
+    /// [`World::step`], reading the contacts after every substep: the
+    /// report's forces and `object_hands`/`object_body`/`body_hands` are
+    /// those of the last substep, the `*_any` fields OR them over the
+    /// substeps and `object_hand_distance` is the smallest over them.
+    pub fn step_with_contacts(&mut self) -> ContactReport {
+        let no = self.n_objects();
+        let mut any_hands = vec![false; no];
+        let mut any_body = vec![false; no];
+        let mut any_bh = false;
+        let mut dist = vec![f32::INFINITY; no];
+        let mut last = ContactReport::default();
+        for _ in 0..self.opts.substeps {
+            self.pw.step();
+            last = self.contacts();
+            for k in 0..no {
+                any_hands[k] |= last.object_hands[k];
+                any_body[k] |= last.object_body[k];
+                dist[k] = dist[k].min(self.hand_distance(k));
+            }
+            any_bh |= last.body_hands;
+        }
+        last.object_hands_any = any_hands;
+        last.object_body_any = any_body;
+        last.body_hands_any = any_bh;
+        last.object_hand_distance = dist;
+        last
+    }
+
+    /// Smallest distance from a hand body's origin to object `k`'s centre, m.
+    pub fn hand_distance(&self, k: usize) -> f32 {
+        let o = self.pw.bodies[self.objects[k]].translation();
+        self.bodies
+            .iter()
+            .zip(&self.sk.hand)
+            .filter(|(_, h)| **h)
+            .map(|(b, _)| (self.pw.bodies[*b].translation() - o).length())
+            .fold(f32::INFINITY, f32::min)
+    }
+
     fn world_angvel(&self, rot: Rotation, w: Vector) -> Vector {
         match self.opts.angvel_frame {
             AngvelFrame::World => w,
@@ -882,6 +959,7 @@ impl World {
             object_hands: vec![false; no],
             object_body: vec![false; no],
             body_hands: false,
+            ..ContactReport::default()
         };
         let inv_dt = self.pw.integration_parameters.inv_dt();
         let colliders = &self.pw.colliders;
@@ -926,6 +1004,10 @@ impl World {
                 }
             }
         }
+        r.object_hands_any = r.object_hands.clone();
+        r.object_body_any = r.object_body.clone();
+        r.body_hands_any = r.body_hands;
+        r.object_hand_distance = (0..no).map(|k| self.hand_distance(k)).collect();
         r
     }
 }

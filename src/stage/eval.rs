@@ -251,6 +251,10 @@ impl Evaluator<'_> {
                             f64::NAN
                         },
                         final_root_z: env.probes()[e].root[2],
+                        down_step: judges[e]
+                            .as_ref()
+                            .and_then(Judge::down_step)
+                            .map(|d| d as u32),
                     });
                     sums[e] = (0.0, 0, 0);
                     judges[e] = cell.rule.map(Judge::new);
@@ -341,10 +345,18 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
     } else {
         cfg.label.clone()
     };
+    let t = &meta.train;
     let base = EnvConfig {
         early_termination: false,
         masked_reward: MaskedReward::Zero,
-        ..EnvConfig::training(meta.train.method)
+        reward: crate::reward::RewardOptions {
+            contacts: t.contacts,
+            contact_detect: t.contact_detect,
+            contact_radius: t.contact_radius,
+            root_rot: t.root_rot,
+            smoothness: t.smoothness,
+        },
+        ..EnvConfig::training(t.method)
     };
     let class_of = |skill: &str| -> u32 {
         lib.clips

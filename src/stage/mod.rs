@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod build_stg;
+pub mod check_contact;
 pub mod check_fk;
 pub mod eval;
 pub mod ingest;
@@ -13,6 +14,7 @@ pub mod report;
 pub mod run;
 pub mod sample_stf;
 pub mod schema;
+pub mod seams;
 pub mod train;
 pub mod view;
 

@@ -33,7 +33,7 @@ use super::Common;
 use crate::augment::ats::{Ats, AtsParams, Update};
 use crate::augment::stf::{StfParams, StfSampler};
 use crate::motion::MotionLib;
-use crate::reward::{ContactRule, DatasetKind, RewardOptions, Weights};
+use crate::reward::{ContactDetect, ContactRule, DatasetKind, RewardOptions, RootRot, Weights};
 use crate::rl::humanoid::{
     EnvConfig, EnvParts, EpisodeRecord, HeRuntime, HumanoidEnv, MaskedReward, Method,
 };
@@ -105,6 +105,41 @@ pub struct TrainConfig {
     pub masked_reward: MaskedReward,
     /// SM contact graph: "paper" (three pairs) or "reference".
     pub contacts: ContactRule,
+    /// How the simulation detects the ball-hands contact: "proximity"
+    /// (a hand within `contact_radius` of the ball, what the data's flag
+    /// measures), "touch" (touching pairs at any substep) or "touch-last".
+    pub contact_detect: ContactDetect,
+    /// Radius of the proximity contact, m.
+    pub contact_radius: f64,
+    /// Root rotation term: "nearest" (exp-map branch nearest the
+    /// reference's) or "raw" (reference code).
+    pub root_rot: RootRot,
+    /// Continue a reference that reaches its clip's end from the most
+    /// similar frame of the skill (the seam), anchored to the character,
+    /// so every episode lasts `episode_length` steps unless it terminates.
+    pub continuation: bool,
+    /// Shortest continued segment, s.
+    pub seam_min_loop_s: f64,
+    /// Terminate when the mean distance of the 18 key points to the
+    /// reference exceeds this, m (0 = off). 0.5 m is the failure rule of
+    /// UHC and PHC (Luo et al. 2023, Section 4).
+    pub term_key_distance: f64,
+    /// Terminate when the ball is farther than this from the root while
+    /// the reference's is not, m (0 = off); 1.5 m is the dribble success
+    /// rule's bound (reference §11.2).
+    pub term_object_distance: f64,
+    /// Fall heights of single skills replacing `fall_height`, m.
+    pub fall_height_by_skill: std::collections::BTreeMap<String, f32>,
+    /// Warm start: epochs of behaviour cloning of the policy mean onto the
+    /// next reference frame's joint rotations before PPO (0 = off; see
+    /// [`HumanoidEnv::warm_start_data`]).
+    pub warm_start_epochs: usize,
+    /// ε-perturbed copies of each reference state in the warm-start data.
+    pub warm_start_copies: usize,
+    /// Adam learning rate of the warm start.
+    pub warm_start_lr: f64,
+    /// First iterations that update only the critic (0 = none).
+    pub critic_warmup_iters: u64,
     /// The reference code's hidden smoothness factor in the SM reward.
     pub smoothness: bool,
     /// ATS statistic update: "mean" or "halving" (reference).
@@ -146,6 +181,10 @@ pub struct PpoOverrides {
     /// Merge observation statistics after the update (see
     /// [`PpoConfig::norm_after_update`]).
     pub norm_after_update: Option<bool>,
+    /// Standardised value targets ([`PpoConfig::normalize_value`]).
+    pub normalize_value: Option<bool>,
+    /// Adaptive learning rate around this KL ([`PpoConfig::kl_threshold`]).
+    pub kl_threshold: Option<f64>,
 }
 
 impl Default for TrainConfig {
@@ -171,6 +210,18 @@ impl Default for TrainConfig {
             collapse_reward: 0.0,
             masked_reward: MaskedReward::ClipMean,
             contacts: ContactRule::Paper,
+            contact_detect: ContactDetect::Proximity,
+            contact_radius: 0.2,
+            root_rot: RootRot::Nearest,
+            continuation: true,
+            seam_min_loop_s: 0.5,
+            term_key_distance: 0.5,
+            term_object_distance: 1.5,
+            fall_height_by_skill: Default::default(),
+            warm_start_epochs: 0,
+            warm_start_copies: 4,
+            warm_start_lr: 1e-3,
+            critic_warmup_iters: 0,
             smoothness: false,
             ats_update: Update::Mean,
             checkpoint_every: 10,
@@ -217,8 +268,12 @@ impl TrainConfig {
             clip,
             critic_coef,
             bounds_coef,
-            norm_after_update
+            norm_after_update,
+            normalize_value
         );
+        if o.kl_threshold.is_some() {
+            c.kl_threshold = o.kl_threshold;
+        }
         c
     }
 
@@ -235,6 +290,28 @@ impl TrainConfig {
         );
         ensure!(self.episode_length > 0, "train.episode_length must be > 0");
         ensure!(self.samples > 0, "train.samples must be > 0");
+        ensure!(
+            self.warm_start_lr.is_finite() && self.warm_start_lr > 0.0,
+            "train.warm_start_lr = {}: must be a finite number > 0",
+            self.warm_start_lr
+        );
+        for (k, v) in [
+            ("contact_radius", self.contact_radius),
+            ("seam_min_loop_s", self.seam_min_loop_s),
+            ("term_key_distance", self.term_key_distance),
+            ("term_object_distance", self.term_object_distance),
+        ] {
+            ensure!(
+                v.is_finite() && v >= 0.0,
+                "train.{k} = {v}: must be a finite number >= 0"
+            );
+        }
+        for (skill, h) in &self.fall_height_by_skill {
+            ensure!(
+                h.is_finite(),
+                "train.fall_height_by_skill.{skill} = {h}: must be finite"
+            );
+        }
         ensure!(
             self.checkpoint_every > 0,
             "train.checkpoint_every must be > 0"
@@ -342,6 +419,8 @@ pub struct Setup {
     pub clips: Vec<usize>,
     /// Whether perturbed starts need forward kinematics.
     pub fk: bool,
+    /// Seam of every clip ([`crate::augment::seam`]).
+    pub seams: Vec<Option<crate::augment::seam::Seam>>,
 }
 
 impl Setup {
@@ -432,7 +511,14 @@ pub fn setup_lib(
     }
     let objects = objects::load_all(&first.objects, &root)?;
     let sim = SimOptions::for_fps(first.fps as f64);
+    let min_loop = (cfg.seam_min_loop_s * first.fps as f64).ceil() as usize;
+    let seams = crate::augment::seam::seams(
+        &lib,
+        &Weights::sm(DatasetKind::of_library(&lib)),
+        min_loop.max(1),
+    );
     Ok(Setup {
+        seams,
         fk: stf_cfg.fk,
         lib,
         edges,
@@ -460,8 +546,19 @@ pub fn environment<'a>(
         masked_reward: cfg.masked_reward,
         reward: RewardOptions {
             contacts: cfg.contacts,
+            contact_detect: cfg.contact_detect,
+            contact_radius: cfg.contact_radius,
+            root_rot: cfg.root_rot,
             smoothness: cfg.smoothness,
         },
+        continue_steps: if cfg.continuation {
+            cfg.episode_length
+        } else {
+            0
+        },
+        term_key_distance: cfg.term_key_distance,
+        term_object_distance: cfg.term_object_distance,
+        fall_height_by_skill: cfg.fall_height_by_skill.clone(),
         nsi_follow: cfg.nsi && !cfg.stf,
         ats: cfg.ats,
         ats_params: s.ats_params,
@@ -504,6 +601,7 @@ pub fn environment_with<'a>(
             sim: s.sim.clone(),
             cfg: env_cfg,
             he,
+            seams: s.seams.clone(),
         },
         n,
         rng,
@@ -736,6 +834,26 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
         env = environment(&s, &cfg, he, n, &mut rng)?;
         env.take_stats();
         agent = Agent::new(env.obs_dim(), env.act_dim(), &ppo, seed, &dev)?;
+        if cfg.warm_start_epochs > 0 {
+            let t = Instant::now();
+            let (obs, targets) = env.warm_start_data(&s.clips, cfg.warm_start_copies, &mut rng)?;
+            let (before, after) = agent.fit_mean(
+                &obs,
+                &targets,
+                cfg.warm_start_epochs,
+                ppo.minibatch.min(512),
+                cfg.warm_start_lr,
+                &mut rng,
+            )?;
+            if !common.args.quiet {
+                println!(
+                    "train: warm start on {} states, {} epochs: action error (mse) {before:.4} -> {after:.4} ({:.1} s)",
+                    obs.len() / env.obs_dim(),
+                    cfg.warm_start_epochs,
+                    t.elapsed().as_secs_f64()
+                );
+            }
+        }
         tracker = EpisodeTracker::new(n);
         metrics = Vec::new();
         iteration = 0;
@@ -782,7 +900,7 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
         let st = env.take_stats();
         env.refresh_ats();
         let t1 = Instant::now();
-        let up = agent.update(&ro, &mut rng)?;
+        let up = agent.update_with(&ro, &mut rng, iteration < cfg.critic_warmup_iters)?;
         let update_s = t1.elapsed().as_secs_f64();
         let total_s = t0.elapsed().as_secs_f64();
         iteration += 1;
@@ -811,6 +929,13 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
             up.bounds_loss,
             up.clip_frac,
             up.approx_kl,
+            up.lr,
+            st.mean_sm_factor(0),
+            st.mean_sm_factor(1),
+            st.mean_sm_factor(2),
+            st.mean_sm_factor(3),
+            st.lost_rate(),
+            st.continuations as f64 / st.episodes.max(1) as f64,
             (n * steps) as f64 / total_s,
             sim_s,
             collect_s - sim_s,

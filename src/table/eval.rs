@@ -28,7 +28,13 @@ pub struct TrialRow {
     pub mean_sm: f64,
     /// Root height at the end, m.
     pub final_root_z: f32,
+    /// First step at which the root was at or below the rule's standing
+    /// height (None: it stood throughout, or an nr trial).
+    pub down_step: Option<u32>,
 }
+
+/// Steps at which the summary gives the fraction of trials still standing.
+pub const STANDING_AT: [u32; 4] = [100, 200, 400, 600];
 
 /// One cell.
 #[derive(Clone, Debug, PartialEq)]
@@ -51,6 +57,10 @@ pub struct SummaryRow {
     pub lo: f64,
     /// Upper end.
     pub hi: f64,
+    /// Fraction of the trials still standing (root above the rule's
+    /// height at every step so far) at each step of [`STANDING_AT`]; NaN for
+    /// nr or when the trials are shorter.
+    pub standing: [f64; 4],
 }
 
 /// Columns of `eval_trials.parquet`.
@@ -96,6 +106,12 @@ pub fn trial_columns() -> Vec<ColumnSpec> {
             false,
             "root height at the end of the trial, m",
         ),
+        ColumnSpec::new(
+            "down_step",
+            UInt32,
+            true,
+            "first policy step at which the root was at or below the rule's standing height (0.5 m; 0.7 for getup and run_no_object); null if it stood throughout or for nr",
+        ),
     ]
 }
 
@@ -127,6 +143,15 @@ pub fn summary_columns() -> Vec<ColumnSpec> {
             false,
             "95 % Wilson interval, upper end (NaN for nr)",
         ),
+        ColumnSpec::new(
+            "standing_100",
+            Float64,
+            false,
+            "fraction of the trials still standing after 100 policy steps (NaN for nr or shorter trials)",
+        ),
+        ColumnSpec::new("standing_200", Float64, false, "the same after 200 steps"),
+        ColumnSpec::new("standing_400", Float64, false, "the same after 400 steps"),
+        ColumnSpec::new("standing_600", Float64, false, "the same after 600 steps"),
     ]
 }
 
@@ -150,6 +175,9 @@ pub fn trials_batch(label: &str, rows: &[TrialRow]) -> Result<RecordBatch> {
         )),
         Arc::new(Float32Array::from_iter_values(
             rows.iter().map(|r| r.final_root_z),
+        )),
+        Arc::new(UInt32Array::from(
+            rows.iter().map(|r| r.down_step).collect::<Vec<_>>(),
         )),
     ];
     Ok(RecordBatch::try_new(schema_of(&trial_columns()), arrays)?)
@@ -175,6 +203,10 @@ pub fn summary_batch(rows: &[SummaryRow]) -> Result<RecordBatch> {
         fl(&|r| r.value),
         fl(&|r| r.lo),
         fl(&|r| r.hi),
+        fl(&|r| r.standing[0]),
+        fl(&|r| r.standing[1]),
+        fl(&|r| r.standing[2]),
+        fl(&|r| r.standing[3]),
     ];
     Ok(RecordBatch::try_new(schema_of(&summary_columns()), arrays)?)
 }
@@ -232,7 +264,22 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
         } else {
             crate::stage::eval::wilson(k[i] as usize, n[i] as usize)
         };
+        let cell: Vec<&TrialRow> = rows
+            .iter()
+            .filter(|r| r.metric == m[i] && r.from == f[i] && r.to == t[i])
+            .collect();
+        let standing = STANDING_AT.map(|at| {
+            if nr || cell.is_empty() || cell.iter().any(|r| r.steps < at) {
+                return f64::NAN;
+            }
+            let up = cell
+                .iter()
+                .filter(|r| r.down_step.is_none_or(|d| d > at))
+                .count();
+            up as f64 / cell.len() as f64
+        });
         out.push(SummaryRow {
+            standing,
             label: label.to_string(),
             metric: m[i].clone(),
             from: f[i].clone(),
@@ -254,8 +301,15 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
 /// A plain text table of a summary.
 pub fn render(rows: &[SummaryRow]) -> String {
     let mut s = format!(
-        "{:<10} {:<6} {:<16} {:<16} {:>7} {:>9} {:>17}\n",
-        "method", "metric", "from", "to", "trials", "value", "95% interval"
+        "{:<10} {:<6} {:<16} {:<16} {:>7} {:>9} {:>17}  {}\n",
+        "method",
+        "metric",
+        "from",
+        "to",
+        "trials",
+        "value",
+        "95% interval",
+        "standing at 100/200/400/600"
     );
     for r in rows {
         let (v, ci) = if r.metric == "nr" {
@@ -266,9 +320,22 @@ pub fn render(rows: &[SummaryRow]) -> String {
                 format!("[{:.1}, {:.1}]%", 100.0 * r.lo, 100.0 * r.hi),
             )
         };
+        let standing: Vec<String> = r
+            .standing
+            .iter()
+            .filter(|x| !x.is_nan())
+            .map(|x| format!("{:.0}%", 100.0 * x))
+            .collect();
         s += &format!(
-            "{:<10} {:<6} {:<16} {:<16} {:>7} {:>9} {:>17}\n",
-            r.label, r.metric, r.from, r.to, r.trials, v, ci
+            "{:<10} {:<6} {:<16} {:<16} {:>7} {:>9} {:>17}  {}\n",
+            r.label,
+            r.metric,
+            r.from,
+            r.to,
+            r.trials,
+            v,
+            ci,
+            standing.join(" / ")
         );
     }
     s
@@ -277,7 +344,11 @@ pub fn render(rows: &[SummaryRow]) -> String {
 /// An `eval_summary` file as a polars frame, its columns checked.
 pub fn summary_frame(path: &std::path::Path) -> Result<DataFrame> {
     let df = super::io::read_frame(path)?;
-    for c in summary_columns() {
+    // the standing fractions came later: summaries without them still read
+    for c in summary_columns()
+        .into_iter()
+        .filter(|c| !c.name.starts_with("standing_"))
+    {
         if df.column(c.name).is_err() {
             anyhow::bail!(
                 "{}: no column `{}`: not an eval_summary table",

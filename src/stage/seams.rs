@@ -1,0 +1,47 @@
+//! `skillaug seams`: where each clip's reference continues when training
+//! carries an episode past the clip's end ([`crate::augment::seam`]): per
+//! clip its last valid frame, the most similar frame of the same skill
+//! (root x, y and heading aligned), the similarity β and the masked states
+//! N that Eq. 20 puts at the seam (`[sample-stf]` τ, N_max and rule).
+
+use super::Common;
+use crate::augment::{n_masked, seam};
+use crate::reward::{DatasetKind, Weights};
+use anyhow::Result;
+
+/// Run the command: print the table.
+pub fn run(common: &Common) -> Result<()> {
+    let cfg: super::train::TrainConfig = common.settings("train")?;
+    let stf: super::sample_stf::StfConfig = common.settings("sample-stf")?;
+    let (p, _) = stf.params()?;
+    let lib = crate::table::load_library(common.input_dir())?;
+    let w = Weights::sm(DatasetKind::of_library(&lib));
+    let fps = lib.clips.first().map_or(60.0, |c| c.fps as f64);
+    let min_loop = ((cfg.seam_min_loop_s * fps).ceil() as usize).max(1);
+    let seams = seam::seams(&lib, &w, min_loop);
+    println!(
+        "{:<16} {:<34} {:>5}   {:<34} {:>5} {:>10} {:>3}",
+        "skill", "clip", "last", "continues in", "frame", "beta", "N"
+    );
+    for (c, s) in seams.iter().enumerate() {
+        let row = &lib.clips[c];
+        match s {
+            Some(s) => println!(
+                "{:<16} {:<34} {:>5}   {:<34} {:>5} {:>10.4} {:>3}",
+                row.skill,
+                row.name,
+                s.last,
+                lib.clips[s.to_clip as usize].name,
+                s.to_frame,
+                s.beta,
+                n_masked(s.beta, p.tau, p.n_max, p.mask_rule)
+                    .map_or("-".to_string(), |n| n.to_string())
+            ),
+            None => println!(
+                "{:<16} {:<34}   no seam (no frame of the skill at least {min_loop} frames from an end)",
+                row.skill, row.name
+            ),
+        }
+    }
+    Ok(())
+}
