@@ -108,7 +108,7 @@ fn eval_gives_the_share_of_trials_standing_from_each_trials_first_fall() {
         "eval.metrics=[\"sr\"]",
         "-q",
     ]);
-    use arrow::array::AsArray;
+    use arrow::array::{Array, AsArray};
     use arrow::datatypes::{Float64Type, UInt32Type};
     let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
     let down = t.batches[0]

@@ -92,7 +92,8 @@ impl Rule {
 
     /// The root height above which the rule counts the character as
     /// standing, m (0.7 for getting up and running without a ball, 0.5 for
-    /// the rest, reference §11.2).
+    /// the rest, as the success rules of Ingrid789/SkillMimic-V2
+    /// `skillmimic/metric/`).
     pub fn stand_height(self) -> f32 {
         match self {
             Rule::Getup | Rule::RunNoObject => 0.7,

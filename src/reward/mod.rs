@@ -206,7 +206,8 @@ pub enum ContactDetect {
     /// the policy step.
     Touch,
     /// Touching collider pairs after the last substep only (the reference
-    /// code reads the post-step net contact forces, §4.2).
+    /// code reads the post-step net contact forces,
+    /// Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/skillmimic1.py`).
     TouchLast,
 }
 
@@ -218,7 +219,8 @@ pub enum RootRot {
     /// the reference's, so one rotation stored two ways costs nothing.
     #[default]
     Nearest,
-    /// Component differences of the raw exp-maps (reference code, §4.2: no
+    /// Component differences of the raw exp-maps (Ingrid789/SkillMimic-V2
+    /// `skillmimic/env/tasks/skillmimic1.py`: no
     /// angle wrapping).
     Raw,
 }

@@ -131,7 +131,8 @@ pub struct EnvConfig {
     /// Continue a reference that reaches its clip's last valid frame from
     /// the clip's seam ([`crate::augment::seam`]) until the episode has
     /// `continue_steps` policy steps (0 = stop at the clip's end, the
-    /// reference code's rule, §4.5).
+    /// reference code's rule, Ingrid789/SkillMimic-V2
+    /// `skillmimic/env/tasks/humanoid_task.py`).
     pub continue_steps: usize,
     /// End an episode when the mean distance of the 18 key points (root
     /// and 17 key bodies) to the reference's exceeds this, m (0 = off).
@@ -324,6 +325,15 @@ fn perturb_objects(s: &mut State, rng: &mut ChaCha8Rng) {
     }
 }
 
+/// Why [`tracking_lost`] ended an episode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Lost {
+    /// The key points strayed from the reference's.
+    KeyPoints,
+    /// The object left the character while the reference kept it.
+    Object,
+}
+
 /// Whether a simulated state `s` has lost its reference: the mean distance
 /// of the 18 key points (root and 17 key bodies) to `reference`'s is above
 /// `key_distance` (m; only with a reference, 0 = off), or object 0 is
@@ -335,7 +345,7 @@ pub fn tracking_lost(
     sk: Skeleton,
     key_distance: f64,
     object_distance: f64,
-) -> bool {
+) -> Option<Lost> {
     if key_distance > 0.0 {
         if let Some(r) = reference {
             let (a, b) = (reward::key_points(s, sk), reward::key_points(r, sk));
@@ -349,7 +359,7 @@ pub fn tracking_lost(
                 .sum::<f64>()
                 / n.max(1) as f64;
             if mean > key_distance {
-                return true;
+                return Some(Lost::KeyPoints);
             }
         }
     }
@@ -362,10 +372,10 @@ pub fn tracking_lost(
         };
         let near_in_reference = reference.is_none_or(|r| dist(r) <= object_distance);
         if near_in_reference && dist(s) > object_distance {
-            return true;
+            return Some(Lost::Object);
         }
     }
-    false
+    None
 }
 
 /// Push `f` as the newest frame of a `[k*C]` history.
@@ -457,7 +467,7 @@ struct Outcome {
     fall: bool,
     collapse: bool,
     /// Tracking failure: key points or the object too far.
-    lost: bool,
+    lost: Option<Lost>,
     timeout: bool,
     /// The post-step history feature (empty without an encoder).
     feature: Vec<f32>,
@@ -484,6 +494,8 @@ pub struct EnvStats {
     pub collapses: u64,
     /// Of which ended by a tracking failure (key points or object too far).
     pub lost: u64,
+    /// Of those, by the object leaving the character.
+    pub lost_object: u64,
     /// Sums of the SM factors body, object, relative, contact over the
     /// unmasked steps.
     pub sm_factor_sums: [f64; 4],
@@ -517,6 +529,11 @@ impl EnvStats {
     /// Fraction of finished episodes ended by a tracking failure.
     pub fn lost_rate(&self) -> f64 {
         self.lost as f64 / self.episodes.max(1) as f64
+    }
+
+    /// Fraction of finished episodes ended because the object left.
+    pub fn lost_object_rate(&self) -> f64 {
+        self.lost_object as f64 / self.episodes.max(1) as f64
     }
 
     /// Fraction of finished episodes that fell.
@@ -686,8 +703,10 @@ impl Ctx<'_> {
         let collapse = self.cfg.collapse_reward > 0.0
             && ep.t > 1
             && sm.is_some_and(|x| x < self.cfg.collapse_reward);
-        let lost = self.cfg.early_termination && ep.t > 1 && self.lost(&s, reference.as_ref(), ep);
-        if !(fall || collapse || lost) {
+        let lost = (self.cfg.early_termination && ep.t > 1)
+            .then(|| self.lost(&s, reference.as_ref(), ep))
+            .flatten();
+        if !(fall || collapse || lost.is_some()) {
             self.extend(ep, &s);
         }
         let timeout = ep.t >= self.cfg.fixed_length.unwrap_or(ep.policy_steps());
@@ -730,7 +749,7 @@ impl Ctx<'_> {
 
     /// Whether `s` has lost its reference ([`tracking_lost`] with the
     /// episode's thresholds; objects count only for classes with one).
-    fn lost(&self, s: &State, reference: Option<&State>, ep: &Episode) -> bool {
+    fn lost(&self, s: &State, reference: Option<&State>, ep: &Episode) -> Option<Lost> {
         let c = &self.cfg;
         let obj = if no_object_class(ep.class) {
             0.0
@@ -943,7 +962,7 @@ impl<'a> HumanoidEnv<'a> {
     /// class, [`crate::augment::stf::perturb`], bodies by forward
     /// kinematics); the target of each is the action whose PD targets are
     /// the joint rotations of ŝ_{f+1} (a = e / π, clamped to [-1, 1]; the
-    /// simulator maps a to π a, reference §2.3). Returns (`N * obs_dim`
+    /// simulator maps a to π a, [`World::apply_action`]). Returns (`N * obs_dim`
     /// observations, `N * act_dim` targets).
     pub fn warm_start_data(
         &self,
@@ -1324,7 +1343,7 @@ impl VecEnv for HumanoidEnv<'_> {
         };
         let mut done = Vec::new();
         for (e, o) in outs.iter().enumerate() {
-            let term = o.fall || o.collapse || o.lost;
+            let term = o.fall || o.collapse || o.lost.is_some();
             if term || o.timeout {
                 res.terminated[e] = term;
                 res.truncated[e] = !term;
@@ -1335,7 +1354,9 @@ impl VecEnv for HumanoidEnv<'_> {
                 self.stats.length_sum += ep.t as u64;
                 self.stats.falls += o.fall as u64;
                 self.stats.collapses += (o.collapse && !o.fall) as u64;
-                self.stats.lost += (o.lost && !o.fall && !o.collapse) as u64;
+                let lost = o.lost.filter(|_| !o.fall && !o.collapse);
+                self.stats.lost += lost.is_some() as u64;
+                self.stats.lost_object += (lost == Some(Lost::Object)) as u64;
                 self.stats.continuations += (!ep.cont.is_empty()) as u64;
                 if ep.n > 0 {
                     let (c, f) = ep.ats_key;
@@ -1388,17 +1409,23 @@ mod tests {
         let r = state([0.0, 0.0, 1.0], [0.5, 0.0, 0.5]);
         // 0.4 m off everywhere: lost at 0.3, kept at 0.5 and without the rule
         let s = state([0.4, 0.0, 1.0], [0.9, 0.0, 0.5]);
-        assert!(tracking_lost(&s, Some(&r), sk, 0.3, 0.0));
-        assert!(!tracking_lost(&s, Some(&r), sk, 0.5, 0.0));
-        assert!(!tracking_lost(&s, Some(&r), sk, 0.0, 0.0));
+        assert_eq!(
+            tracking_lost(&s, Some(&r), sk, 0.3, 0.0),
+            Some(Lost::KeyPoints)
+        );
+        assert_eq!(tracking_lost(&s, Some(&r), sk, 0.5, 0.0), None);
+        assert_eq!(tracking_lost(&s, Some(&r), sk, 0.0, 0.0), None);
         // masked step: no key-point test
-        assert!(!tracking_lost(&s, None, sk, 0.3, 0.0));
+        assert_eq!(tracking_lost(&s, None, sk, 0.3, 0.0), None);
         // the ball 2 m from the root while the reference holds it
         let far = state([0.0, 0.0, 1.0], [2.0, 0.0, 0.5]);
-        assert!(tracking_lost(&far, Some(&r), sk, 0.0, 1.5));
-        assert!(!tracking_lost(&far, Some(&r), sk, 0.0, 2.5));
+        assert_eq!(
+            tracking_lost(&far, Some(&r), sk, 0.0, 1.5),
+            Some(Lost::Object)
+        );
+        assert_eq!(tracking_lost(&far, Some(&r), sk, 0.0, 2.5), None);
         // a shot: the reference's ball has left too
         let shot = state([0.0, 0.0, 1.0], [3.0, 0.0, 3.0]);
-        assert!(!tracking_lost(&far, Some(&shot), sk, 0.0, 1.5));
+        assert_eq!(tracking_lost(&far, Some(&shot), sk, 0.0, 1.5), None);
     }
 }

@@ -33,7 +33,8 @@
 //!   returns standardised by a running mean and variance; rollout and
 //!   bootstrap values are de-standardised (input clamped to ±5); before each
 //!   update the statistics merge the stored values, then the returns, and the
-//!   value loss is computed in standardised units (reference §10.3).
+//!   value loss is computed in standardised units (rl_games 1.1.4,
+//!   `rl_games/common/a2c_common.py`).
 //! * adaptive learning rate (`kl_threshold`, off by default): after every
 //!   mini-epoch the mean approximate KL of its minibatches sets the rate,
 //!   divided by 1.5 above twice the threshold and multiplied by 1.5 below

@@ -126,7 +126,7 @@ pub struct TrainConfig {
     pub term_key_distance: f64,
     /// Terminate when the ball is farther than this from the root while
     /// the reference's is not, m (0 = off); 1.5 m is the dribble success
-    /// rule's bound (reference §11.2).
+    /// rule's bound (Ingrid789/SkillMimic-V2 `skillmimic/metric/`).
     pub term_object_distance: f64,
     /// Fall heights of single skills replacing `fall_height`, m.
     pub fall_height_by_skill: std::collections::BTreeMap<String, f32>,
@@ -935,7 +935,12 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
             st.mean_sm_factor(2),
             st.mean_sm_factor(3),
             st.lost_rate(),
-            st.continuations as f64 / st.episodes.max(1) as f64,
+            st.lost_object_rate(),
+            if st.episodes > 0 {
+                st.continuations as f64 / st.episodes as f64
+            } else {
+                f64::NAN
+            },
             (n * steps) as f64 / total_s,
             sim_s,
             collect_s - sim_s,
