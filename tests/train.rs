@@ -456,12 +456,26 @@ fn open_loop_reference_targets_score_above_zero_actions() {
 
 #[test]
 fn references_continue_past_the_clip_end_from_the_seam_anchored_at_the_character() {
+    continue_past_the_clip_end(0);
+}
+
+#[test]
+fn seams_take_at_least_the_asked_masked_steps() {
+    continue_past_the_clip_end(3);
+}
+
+/// 200-step DF episodes with zero actions: the reference frames run on in
+/// order, jump only at a clip's last frame to its seam (after exactly
+/// `masked_min` masked steps, as the DF seams have N = 0 by Eq. 20), and
+/// the continued reference starts where the character stands.
+fn continue_past_the_clip_end(masked_min: u32) {
     let (dir, run) = ingested("ballplay");
     let common = common_for(&run, dir.path().join("x"));
     let cfg = TrainConfig {
         skills: vec!["run".into()],
         episode_length: 200,
         early_termination: false,
+        seam_masked_min: masked_min,
         ..TrainConfig::default()
     };
     let s = setup(&common, &cfg).unwrap();
@@ -482,8 +496,9 @@ fn references_continue_past_the_clip_end_from_the_seam_anchored_at_the_character
     let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
     env.set_recording(true);
     let zeros = vec![0f32; n * env.act_dim()];
-    // per env: (reference, root xy, anchored reference root xy) per step
-    let mut trace: Vec<Vec<(Option<(u32, u32)>, [f32; 2], Option<[f32; 2]>)>> = vec![Vec::new(); n];
+    // per env and step: (reference clip and frame, root xy, anchored reference root xy)
+    type Traced = (Option<(u32, u32)>, [f32; 2], Option<[f32; 2]>);
+    let mut trace: Vec<Vec<Traced>> = vec![Vec::new(); n];
     let mut ended = vec![false; n];
     for _ in 0..200 {
         let r = env.step(&zeros, &mut rng).unwrap();
@@ -519,10 +534,13 @@ fn references_continue_past_the_clip_end_from_the_seam_anchored_at_the_character
             let seam = s.seams[c0 as usize].unwrap();
             assert_eq!(f0, seam.last, "jumped from a frame before the clip's end");
             assert_eq!(c1, seam.to_clip);
-            assert!(
-                f1 == seam.to_frame + 1 || f1 == seam.to_frame,
-                "{f1} vs {seam:?}"
-            );
+            assert_eq!(k - p - 1, masked_min as usize, "masked steps at the seam");
+            let want = if masked_min == 0 {
+                seam.to_frame + 1
+            } else {
+                seam.to_frame
+            };
+            assert_eq!(f1, want, "{seam:?}");
             // anchored at the character: the reference's root starts where
             // the character stood at the seam (a frame of motion per step apart)
             let Some(r) = step.2 else {
@@ -533,9 +551,10 @@ fn references_continue_past_the_clip_end_from_the_seam_anchored_at_the_character
                 );
                 continue;
             };
-            let at = t[p].1;
+            let at = t[k - 1].1;
             let d = ((r[0] - at[0]).powi(2) + (r[1] - at[1]).powi(2)).sqrt();
-            let allowed = 0.15 + 0.06 * (k - p - 1) as f32;
+            // (anchored when the masked steps end: one frame of motion)
+            let allowed = 0.15;
             assert!(d < allowed, "continued reference {d} m from the character");
             seams_seen += 1;
         }

@@ -143,6 +143,9 @@ pub struct EnvConfig {
     pub term_object_distance: f64,
     /// Fall thresholds replacing `fall_height` for some skills, m.
     pub fall_height_by_skill: std::collections::BTreeMap<String, f32>,
+    /// Masked steps at a seam at least (Eq. 20 gives N = 0 for every
+    /// β > 0.1; 0 = Eq. 20 alone).
+    pub seam_masked_min: u32,
 }
 
 impl EnvConfig {
@@ -166,6 +169,7 @@ impl EnvConfig {
             term_key_distance: 0.0,
             term_object_distance: 0.0,
             fall_height_by_skill: Default::default(),
+            seam_masked_min: 0,
         }
     }
 }
@@ -401,6 +405,9 @@ struct Episode {
     /// Steps after the trajectory's own, continued past clip ends, each
     /// with the move that anchors its reference frame.
     cont: Vec<(Step, Anchor)>,
+    /// A seam whose masked steps are running: its frames follow them,
+    /// anchored where the character is when they end.
+    pending: Option<Seam>,
     class: u32,
     /// Training-reward weights of this episode (object terms off for classes 0/10).
     weights: Weights,
@@ -632,6 +639,7 @@ impl Ctx<'_> {
         };
         let ep = Episode {
             cont: Vec::new(),
+            pending: None,
             class,
             weights,
             sm_weights,
@@ -761,11 +769,19 @@ impl Ctx<'_> {
 
     /// Continue `ep`'s reference past its clip's end (see
     /// [`crate::augment::seam`]) when the step just taken was its last and
-    /// the episode may run longer: N masked steps by Eq. 20, then the seam's
-    /// frames, anchored to `s` (the character's state at the seam).
+    /// the episode may run longer. N = Eq. 20 (β), at least
+    /// `seam_masked_min`: with N = 0 the seam frame's successors follow at
+    /// once, anchored to `s` (the character's state at the seam); else N
+    /// masked steps first, and the seam frame and its successors follow
+    /// them, anchored to the character's state when they end (Eq. 7: start,
+    /// N masked states, ŝ_j, ŝ_{j+1}, ...).
     fn extend(&self, ep: &mut Episode, s: &State) {
         let total = self.cfg.continue_steps;
         if total == 0 || ep.t < ep.policy_steps() || ep.t >= total {
+            return;
+        }
+        if let Some(seam) = ep.pending.take() {
+            self.follow_seam(ep, s, seam, seam.to_frame as usize);
             return;
         }
         let Some((last, _)) = ep.step_at(ep.t) else {
@@ -779,6 +795,32 @@ impl Ctx<'_> {
         let Some(n) = crate::augment::n_masked(seam.beta, p.tau, p.n_max, p.mask_rule) else {
             return;
         };
+        let n = n.max(self.cfg.seam_masked_min) as usize;
+        if n == 0 {
+            self.follow_seam(ep, s, seam, seam.to_frame as usize + 1);
+            return;
+        }
+        let inserted = Step {
+            masked: true,
+            ref_clip: None,
+            ref_frame: None,
+        };
+        // masked steps carry no reference: the anchor is never read
+        let none = Anchor {
+            yaw: 0.0,
+            pivot: [0.0; 2],
+            to: [0.0; 2],
+        };
+        let room = total - ep.t;
+        ep.cont
+            .extend(std::iter::repeat_n((inserted, none), n.min(room)));
+        ep.pending = Some(seam);
+    }
+
+    /// Append the frames of `seam`'s clip from `first` to its last valid
+    /// frame (at most to the episode's length), moved so that the seam
+    /// frame's root x, y and heading are `s`'s.
+    fn follow_seam(&self, ep: &mut Episode, s: &State, seam: Seam, first: usize) {
         let (c2, j) = (seam.to_clip as usize, seam.to_frame as usize);
         let Some(target) = self.lib.state(c2, j) else {
             return;
@@ -790,30 +832,20 @@ impl Ctx<'_> {
             pivot: [target.root_pos[0] as f64, target.root_pos[1] as f64],
             to: [s.root_pos[0] as f64, s.root_pos[1] as f64],
         };
-        let room = total - ep.t;
-        let inserted = Step {
-            masked: true,
-            ref_clip: None,
-            ref_frame: None,
-        };
-        let mut add: Vec<(Step, Anchor)> = vec![(inserted, anchor); (n as usize).min(room)];
+        let room = self.cfg.continue_steps - ep.t;
         let cf = &self.lib.frames[c2];
-        let first = if n == 0 { j + 1 } else { j };
         let end = (0..cf.frames).rev().find(|f| cf.valid[*f]).unwrap_or(0);
-        for f in first..=end {
-            if add.len() >= room {
-                break;
-            }
-            add.push((
+        let steps = (first..=end).take(room).map(|f| {
+            (
                 Step {
                     masked: !cf.valid[f],
                     ref_clip: Some(c2 as u32),
                     ref_frame: Some(f as u32),
                 },
                 anchor,
-            ));
-        }
-        ep.cont.extend(add);
+            )
+        });
+        ep.cont.extend(steps);
     }
 
     /// What the success rules see of `s`.

@@ -120,6 +120,9 @@ pub struct TrainConfig {
     pub continuation: bool,
     /// Shortest continued segment, s.
     pub seam_min_loop_s: f64,
+    /// Masked steps at a seam at least (Eq. 20 alone gives N = 0 for every
+    /// beta > 0.1, so the reference jumps to the seam frame at once).
+    pub seam_masked_min: u32,
     /// Terminate when the mean distance of the 18 key points to the
     /// reference exceeds this, m (0 = off). 0.5 m is the failure rule of
     /// UHC and PHC (Luo et al. 2023, Section 4).
@@ -215,6 +218,7 @@ impl Default for TrainConfig {
             root_rot: RootRot::Nearest,
             continuation: true,
             seam_min_loop_s: 0.5,
+            seam_masked_min: 0,
             term_key_distance: 0.5,
             term_object_distance: 1.5,
             fall_height_by_skill: Default::default(),
@@ -559,6 +563,7 @@ pub fn environment<'a>(
         term_key_distance: cfg.term_key_distance,
         term_object_distance: cfg.term_object_distance,
         fall_height_by_skill: cfg.fall_height_by_skill.clone(),
+        seam_masked_min: cfg.seam_masked_min,
         nsi_follow: cfg.nsi && !cfg.stf,
         ats: cfg.ats,
         ats_params: s.ats_params,
