@@ -290,3 +290,61 @@ fn the_vectorised_environment_gives_the_same_states_on_one_and_two_threads() {
     assert_eq!(one, two);
     assert_ne!(one[0], one[1], "worlds got different actions");
 }
+
+#[test]
+fn the_proximity_rule_agrees_with_the_clips_contact_flag() {
+    // The flag of every BallPlay frame against the rules, with the frame set
+    // into the simulator (measured: proximity 0.2 m 96.4 %, touching pairs
+    // at any substep 68.8 %; docs/training.md).
+    let (_d, lib, model) = ballplay();
+    let opts = SimOptions::default();
+    let (mut rows, mut n) = (Vec::new(), 0);
+    for c in 0..lib.clips.len() {
+        let a = checks::contact_agreement(&lib, c, &model, &[ObjectSpec::ball()], &opts)
+            .unwrap()
+            .expect("BallPlay clips have a ball");
+        assert!(
+            a.flagged > 0 && a.flagged < a.frames,
+            "{}",
+            lib.clips[c].name
+        );
+        n += a.frames;
+        rows.extend(a.rows);
+    }
+    let all = checks::ContactAgreement {
+        frames: n,
+        flagged: rows.iter().filter(|r| r.0).count(),
+        rows,
+    };
+    let (prox, touch) = (all.proximity(0.2), all.agreement(|r| r.2));
+    eprintln!("{n} frames: proximity 0.2 m {prox:.3}, touch {touch:.3}");
+    assert!(prox >= 0.9, "proximity agrees on {prox}");
+    assert!(
+        prox > touch + 0.1,
+        "proximity {prox} vs touching pairs {touch}"
+    );
+}
+
+#[test]
+fn seams_and_check_contact_print_a_row_per_clip() {
+    let (_d, run) = ingested("ballplay");
+    let from = run.to_str().unwrap();
+    let out = run.join("x");
+    let text = ok(&["seams", "--from", from, "--out", out.to_str().unwrap()]);
+    for name in ["013_018pickle_run_4", "009_006pickle_dribble2shot"] {
+        assert!(text.lines().any(|l| l.contains(name)), "{text}");
+    }
+    let text = ok(&[
+        "check-contact",
+        "--from",
+        from,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(text.contains("best proximity radius"), "{text}");
+    assert_eq!(
+        text.lines().filter(|l| l.contains("pickle")).count(),
+        6,
+        "{text}"
+    );
+}
