@@ -215,6 +215,9 @@ fn nsi_starts_are_noised_and_never_masked() {
             "train.p_n=1.0",
             "--set",
             "train.samples=256",
+            // starts only: a seam's masked steps (Layup: N = 1) are not theirs
+            "--set",
+            "train.continuation=false",
         ],
     ));
     let m = metrics(&out);

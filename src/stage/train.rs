@@ -135,7 +135,7 @@ pub struct TrainConfig {
     pub fall_height_by_skill: std::collections::BTreeMap<String, f32>,
     /// Warm start: epochs of behaviour cloning of the policy mean onto the
     /// next reference frame's joint rotations before PPO (0 = off; see
-    /// [`HumanoidEnv::warm_start_data`]).
+    /// [`HumanoidEnv::warm_start_data`]; on by default, docs/training.md).
     pub warm_start_epochs: usize,
     /// ε-perturbed copies of each reference state in the warm-start data.
     pub warm_start_copies: usize,
@@ -222,10 +222,10 @@ impl Default for TrainConfig {
             term_key_distance: 0.5,
             term_object_distance: 1.5,
             fall_height_by_skill: Default::default(),
-            warm_start_epochs: 0,
+            warm_start_epochs: 50,
             warm_start_copies: 4,
             warm_start_lr: 1e-3,
-            critic_warmup_iters: 0,
+            critic_warmup_iters: 5,
             smoothness: false,
             ats_update: Update::Mean,
             checkpoint_every: 10,
@@ -846,7 +846,8 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
                 &obs,
                 &targets,
                 cfg.warm_start_epochs,
-                ppo.minibatch.min(512),
+                // 512 for the presets; tiny test minibatches would make thousands of steps
+                ppo.minibatch.clamp(256, 512),
                 cfg.warm_start_lr,
                 &mut rng,
             )?;
