@@ -1,6 +1,6 @@
 //! A vectorised environment: N independent worlds stepped in parallel with
 //! rayon (measured 1.96x on two threads with this humanoid,
-//! docs/measured-notes.md). Each world is deterministic on its own, so the
+//! docs/simulation.md). Each world is deterministic on its own, so the
 //! results do not depend on the thread count.
 
 use super::mjcf::Model;

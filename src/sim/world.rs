@@ -1,24 +1,25 @@
 //! One simulated world: the MJCF humanoid, a ground plane and the task's
-//! objects, in rapier3d 0.36 (reference §2).
+//! objects, in rapier3d 0.36 (the model, gains and settings of SkillMimic-V2;
+//! sources and measured facts in docs/simulation.md).
 //!
 //! **Model.** Every body of the MJCF becomes a dynamic rigid body whose frame
 //! is the MJCF body frame; its geoms (capsules from `fromto`, spheres, boxes)
 //! (and a cylinder from `fromto` in the ParaHome head) are its colliders, with the geom density (`density=""` and absent: 1000,
 //! MuJoCo's default; a negative box half-extent is taken as its absolute
 //! value). Each body's three hinges become one spherical *impulse* joint to
-//! its parent (impulse joints measured about 100x faster than multibody
-//! joints at this size), anchored at the child's origin with identity joint
+//! its parent (impulse joints measured about 35x faster than multibody
+//! joints at this size, docs/simulation.md), anchored at the child's origin with identity joint
 //! frames, so the joint's relative rotation is the body's local rotation and
-//! its coordinates are the exp-map triples of the data (reference §1.4).
+//! its coordinates are the exp-map triples of the data (docs/simulation.md).
 //!
 //! **Departures from the MJCF**, needed for impulse joints to be stable with
-//! the model's extreme mass ratios (docs/measured-notes.md; recorded in
+//! the model's extreme mass ratios (docs/simulation.md; recorded in
 //! [`SimOptions`] and so in every resolved config):
 //! the MJCF joint armature (0.02) is added as principal inertia of every
 //! non-root body, and non-hand bodies weigh at least `min_mass` (0.5 kg:
 //! this changes only the 5.6 g Chest sphere and the toes).
 //!
-//! **PD drives** (reference §2.3): implicit, solved by the engine
+//! **PD drives** (target = pi * action, docs/simulation.md): implicit, solved by the engine
 //! (`MotorModel::ForceBased` with the MJCF stiffness/damping as kp/kd,
 //! torque = kp (target - q) - kd dq/dt per axis, no force limit). A target
 //! triple `e` (target = pi * action) is converted to the three angles a
@@ -33,7 +34,7 @@
 //! **Collisions.** Self-collision is on except between a body and its
 //! parent (`contacts_enabled(false)` on the joint); objects collide with
 //! everything; the ground is the static half-space z <= 0
-//! (restitution 0.8, friction 1.0, reference §2.4). Gravity is -z (the
+//! (restitution 0.8, friction 1.0, docs/simulation.md). Gravity is -z (the
 //! BallPlay model is built y-up; the data's root rotation carries it into
 //! the z-up world).
 //!
@@ -46,7 +47,7 @@
 //! velocities from the root and joint rates through the exp-map Jacobian
 //! ([`super::rot`]). Root and object angular velocities are read and written
 //! in the frame the tables use (`angvel_frame`, body frame by default: the
-//! reference loader's rule, reference §1.8).
+//! reference loader's rule, docs/simulation.md).
 
 use super::mjcf::Model;
 use super::objects::ObjectSpec;
@@ -101,9 +102,9 @@ pub struct SimOptions {
     /// worlds x 10 s of random actions (-1.9 cm at 360 Hz).
     pub ground_contact_hz: f32,
     /// Largest velocity used to push penetrating bodies apart, m/s
-    /// (PhysX `max_depenetration_velocity` 10, reference §2.5).
+    /// (PhysX `max_depenetration_velocity` 10 in SkillMimic-V2's configs).
     pub max_depenetration_velocity: f32,
-    /// Angular damping of humanoid bodies (reference asset option 0.01).
+    /// Angular damping of humanoid bodies (SkillMimic-V2 asset option 0.01, docs/simulation.md).
     pub angular_damping: f32,
     /// Frame of root and object angular velocities in [`State`].
     pub angvel_frame: AngvelFrame,
@@ -115,7 +116,7 @@ pub struct SimOptions {
     /// solver contact (all of a hand's fingers, arms beside the trunk); 0.05
     /// with `soft_ccd` (fast bodies predict as far as they move) keeps the
     /// ground penetration within 2 cm and steps the full model about 1.3x
-    /// faster (`skillaug bench sim`, issue note).
+    /// faster (`skillaug bench sim`, docs/simulation.md).
     pub prediction_distance: f32,
     /// Soft CCD of humanoid bodies and objects, m (0 disables; rapier's
     /// `soft_ccd_prediction`): a pair's contacts are predicted as far ahead
@@ -226,7 +227,8 @@ pub struct ContactReport {
 }
 
 impl ContactReport {
-    /// The reward's contact indicators (reference §4.2, paper Eq. 16):
+    /// The reward's contact indicators (paper Eq. 16 and the rule of
+    /// SkillMimic-V2 `skillmimic/env/tasks/skillmimic1.py`):
     /// object 0 against hands (by `detect`; `radius` in m for the
     /// proximity rule) and body, hands against body (touching at any
     /// substep, or at the last one for [`ContactDetect::TouchLast`]), and
@@ -624,7 +626,7 @@ impl World {
     }
 
     /// Set the targets from a policy action: target = pi * clamp(a, -1, 1)
-    /// (reference §2.3).
+    /// (docs/simulation.md).
     pub fn apply_action(&mut self, action: &[f32]) {
         assert_eq!(action.len(), self.targets.len(), "one action per DoF");
         let t = |a: f32| std::f32::consts::PI * a.clamp(-1.0, 1.0);
