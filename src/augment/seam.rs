@@ -40,17 +40,13 @@ pub struct Seam {
 /// weights (the dataset's SM weights); `min_loop`: the shortest continued
 /// segment, frames.
 pub fn seams(lib: &MotionLib, w: &Weights, min_loop: usize) -> Vec<Option<Seam>> {
-    let last_valid = |c: usize| {
-        let cf = &lib.frames[c];
-        (0..cf.frames).rev().find(|f| cf.valid[*f])
-    };
     (0..lib.clips.len())
         .map(|c| {
-            let last = last_valid(c)?;
+            let last = lib.frames[c].last_valid()?;
             let end = lib.state(c, last)?;
             let mut best: Option<Seam> = None;
             for c2 in lib.clips_of(&lib.clips[c].skill) {
-                let Some(last2) = last_valid(c2) else {
+                let Some(last2) = lib.frames[c2].last_valid() else {
                     continue;
                 };
                 let allowed = start_frames(&lib.frames[c2]);

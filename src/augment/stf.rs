@@ -728,7 +728,7 @@ impl<'a> StfSampler<'a> {
         };
         v.extend(std::iter::repeat_n(inserted_step, inserted as usize));
         let cf = &self.lib.frames[j.0];
-        if let Some(last) = (0..cf.frames).rev().find(|f| cf.valid[*f]) {
+        if let Some(last) = cf.last_valid() {
             for f in first..=last {
                 if v.len() > horizon {
                     break;

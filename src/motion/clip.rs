@@ -155,6 +155,11 @@ pub struct ClipFrames {
 }
 
 impl ClipFrames {
+    /// The last valid frame (`None` when no frame is valid).
+    pub fn last_valid(&self) -> Option<usize> {
+        (0..self.frames).rev().find(|f| self.valid[*f])
+    }
+
     /// Number of valid frames.
     pub fn valid_frames(&self) -> usize {
         self.valid.iter().filter(|v| **v).count()

@@ -404,7 +404,7 @@ struct Episode {
     traj: Trajectory,
     /// Steps after the trajectory's own, continued past clip ends, each
     /// with the move that anchors its reference frame.
-    cont: Vec<(Step, Anchor)>,
+    cont: Vec<(Step, Option<Anchor>)>,
     /// A seam whose masked steps are running: its frames follow them,
     /// anchored where the character is when they end.
     pending: Option<Seam>,
@@ -438,7 +438,7 @@ impl Episode {
         if t < own {
             Some((self.traj.steps[t], None))
         } else {
-            self.cont.get(t - own).map(|(s, a)| (*s, Some(*a)))
+            self.cont.get(t - own).copied()
         }
     }
 }
@@ -805,15 +805,9 @@ impl Ctx<'_> {
             ref_clip: None,
             ref_frame: None,
         };
-        // masked steps carry no reference: the anchor is never read
-        let none = Anchor {
-            yaw: 0.0,
-            pivot: [0.0; 2],
-            to: [0.0; 2],
-        };
         let room = total - ep.t;
         ep.cont
-            .extend(std::iter::repeat_n((inserted, none), n.min(room)));
+            .extend(std::iter::repeat_n((inserted, None), n.min(room)));
         ep.pending = Some(seam);
     }
 
@@ -834,7 +828,7 @@ impl Ctx<'_> {
         };
         let room = self.cfg.continue_steps - ep.t;
         let cf = &self.lib.frames[c2];
-        let end = (0..cf.frames).rev().find(|f| cf.valid[*f]).unwrap_or(0);
+        let end = cf.last_valid().unwrap_or(0);
         let steps = (first..=end).take(room).map(|f| {
             (
                 Step {
@@ -842,7 +836,7 @@ impl Ctx<'_> {
                     ref_clip: Some(c2 as u32),
                     ref_frame: Some(f as u32),
                 },
-                anchor,
+                Some(anchor),
             )
         });
         ep.cont.extend(steps);

@@ -694,7 +694,7 @@ impl World {
             for k in 0..no {
                 any_hands[k] |= last.object_hands[k];
                 any_body[k] |= last.object_body[k];
-                dist[k] = dist[k].min(self.hand_distance(k));
+                dist[k] = dist[k].min(last.object_hand_distance[k]);
             }
             any_bh |= last.body_hands;
         }
