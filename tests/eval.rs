@@ -13,14 +13,10 @@ fn tiny_train(from: &str, out: &str, extra: &[&str]) {
     ok(&a);
 }
 
-#[test]
-fn eval_writes_trials_and_a_summary_with_every_cell() {
-    let (dir, run) = ingested("ballplay");
-    let from = run.to_str().unwrap();
-    let pol = dir.path().join("pol");
-    tiny_train(from, pol.to_str().unwrap(), &[]);
-    let out = dir.path().join("ev");
-    let text = ok(&[
+/// `skillaug eval` of policy `pol` on run `from` into `out` with `--set`
+/// overrides (each "key=value"); returns what it printed.
+fn eval(from: &str, pol: &std::path::Path, out: &std::path::Path, sets: &[&str]) -> String {
+    let mut a = vec![
         "eval",
         "--from",
         from,
@@ -28,13 +24,26 @@ fn eval_writes_trials_and_a_summary_with_every_cell() {
         pol.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
-        "--set",
-        "eval.trials=6",
-        "--set",
-        "eval.envs=3",
-        "--set",
-        "eval.steps=20",
-    ]);
+    ];
+    for kv in sets {
+        a.extend_from_slice(&["--set", kv]);
+    }
+    ok(&a)
+}
+
+#[test]
+fn eval_writes_trials_and_a_summary_with_every_cell() {
+    let (dir, run) = ingested("ballplay");
+    let from = run.to_str().unwrap();
+    let pol = dir.path().join("pol");
+    tiny_train(from, pol.to_str().unwrap(), &[]);
+    let out = dir.path().join("ev");
+    let text = eval(
+        from,
+        &pol,
+        &out,
+        &["eval.trials=6", "eval.envs=3", "eval.steps=20"],
+    );
     assert!(text.contains("95% interval"), "{text}");
     let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
     let rows: usize = t.batches.iter().map(|b| b.num_rows()).sum();
@@ -90,24 +99,17 @@ fn eval_gives_the_share_of_trials_standing_from_each_trials_first_fall() {
         &["--set", "train.skills=[\"run\"]"],
     );
     let out = dir.path().join("ev");
-    ok(&[
-        "eval",
-        "--from",
+    eval(
         from,
-        "--policy",
-        pol.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--set",
-        "eval.trials=4",
-        "--set",
-        "eval.envs=4",
-        "--set",
-        "eval.steps=200",
-        "--set",
-        "eval.metrics=[\"sr\"]",
-        "-q",
-    ]);
+        &pol,
+        &out,
+        &[
+            "eval.trials=4",
+            "eval.envs=4",
+            "eval.steps=200",
+            "eval.metrics=[\"sr\"]",
+        ],
+    );
     use arrow::array::{Array, AsArray};
     use arrow::datatypes::{Float64Type, UInt32Type};
     let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
