@@ -115,10 +115,96 @@ impl SetArg {
     }
 }
 
-/// Resolve the settings of `stage`: defaults < recipe < `--set`.
+/// Range checks of a stage's resolved settings, run by [`resolve`] so that
+/// every stage that reads a table refuses a value that makes no sense
+/// before any work, with a message naming the key (`sim.physics_hz`).
+pub trait Validate {
+    /// Check every numeric setting (finite, in range) and their
+    /// combinations; `stage` is the table's name for the messages.
+    ///
+    /// # Errors
+    /// The first setting out of range, named `stage.key` with its value.
+    fn validate(&self, stage: &str) -> Result<()>;
+}
+
+/// Checks of single settings for [`Validate`] implementations: each names
+/// the key as `stage.key` and says what the value must be.
+pub struct Check<'a> {
+    stage: &'a str,
+}
+
+impl<'a> Check<'a> {
+    /// Checks of the settings of table `stage`.
+    pub fn new(stage: &'a str) -> Check<'a> {
+        Check { stage }
+    }
+
+    /// `value` is finite and in `[lo, hi]`.
+    pub fn range(&self, key: &str, value: f64, lo: f64, hi: f64) -> Result<()> {
+        if !(value.is_finite() && value >= lo && value <= hi) {
+            bail!(
+                "{}.{key} = {value}: must be a finite number in [{lo}, {hi}]",
+                self.stage
+            );
+        }
+        Ok(())
+    }
+
+    /// `value` is finite and > 0.
+    pub fn positive(&self, key: &str, value: f64) -> Result<()> {
+        if !(value.is_finite() && value > 0.0) {
+            bail!(
+                "{}.{key} = {value}: must be a finite number > 0",
+                self.stage
+            );
+        }
+        Ok(())
+    }
+
+    /// `value` is finite and >= 0.
+    pub fn non_negative(&self, key: &str, value: f64) -> Result<()> {
+        if !(value.is_finite() && value >= 0.0) {
+            bail!(
+                "{}.{key} = {value}: must be a finite number >= 0",
+                self.stage
+            );
+        }
+        Ok(())
+    }
+
+    /// `value` is finite.
+    pub fn finite(&self, key: &str, value: f64) -> Result<()> {
+        if !value.is_finite() {
+            bail!("{}.{key} = {value}: must be a finite number", self.stage);
+        }
+        Ok(())
+    }
+
+    /// A count `value` in `[lo, hi]`.
+    pub fn count(&self, key: &str, value: u64, lo: u64, hi: u64) -> Result<()> {
+        if !(lo..=hi).contains(&value) {
+            bail!(
+                "{}.{key} = {value}: must be an integer in [{lo}, {hi}]",
+                self.stage
+            );
+        }
+        Ok(())
+    }
+
+    /// A condition on several keys; `what` says which and why.
+    pub fn holds(&self, ok: bool, what: impl FnOnce() -> String) -> Result<()> {
+        if !ok {
+            bail!("{}.{}", self.stage, what());
+        }
+        Ok(())
+    }
+}
+
+/// Resolve the settings of `stage`: defaults < recipe < `--set`, then
+/// [`Validate::validate`].
 pub fn resolve<T>(recipe: &Recipe, stage: &str, sets: &[SetArg]) -> Result<T>
 where
-    T: Serialize + DeserializeOwned + Default,
+    T: Serialize + DeserializeOwned + Default + Validate,
 {
     let mut table = recipe
         .table
@@ -144,9 +230,12 @@ where
             .try_into::<T>()
             .map_err(|e| anyhow!("--set {}: {}", s.raw, e.message()))?;
     }
-    toml::Value::Table(table)
+    let t: T = toml::Value::Table(table)
         .try_into::<T>()
-        .map_err(|e| anyhow!("[{stage}]: {}", e.message()))
+        .map_err(|e| anyhow!("[{stage}]: {}", e.message()))?;
+    t.validate(stage)
+        .map_err(|e| anyhow!("{e} (settings from {} and --set)", recipe.source()))?;
+    Ok(t)
 }
 
 /// The TOML text of `<stage>.resolved.toml`: the run's common settings and the
@@ -182,6 +271,11 @@ mod tests {
         fps: f64,
         name: String,
         flag: bool,
+    }
+    impl Validate for Demo {
+        fn validate(&self, stage: &str) -> Result<()> {
+            Check::new(stage).positive("fps", self.fps)
+        }
     }
     impl Default for Demo {
         fn default() -> Self {
@@ -229,6 +323,30 @@ mod tests {
         assert!(e.contains("bogus") && e.contains("--set"), "{e}");
         assert!("nostage.x=1".parse::<SetArg>().is_err());
         assert!("ingest=1".parse::<SetArg>().is_err());
+    }
+
+    #[test]
+    fn out_of_range_values_name_the_key_and_the_source() {
+        for bad in ["0", "-1", "inf", "nan"] {
+            let sets: Vec<SetArg> = vec![format!("ingest.fps={bad}").parse().unwrap()];
+            let e = format!(
+                "{:#}",
+                resolve::<Demo>(&recipe(""), "ingest", &sets).unwrap_err()
+            );
+            assert!(
+                e.contains("ingest.fps") && e.contains("stages/x.toml") && e.contains("> 0"),
+                "{e}"
+            );
+        }
+        let c = Check::new("sim");
+        assert!(c.range("x", 0.5, 0.0, 1.0).is_ok());
+        assert!(c.range("x", 1.5, 0.0, 1.0).is_err());
+        assert!(c.non_negative("x", 0.0).is_ok());
+        assert!(c
+            .count("n", 0, 1, 10)
+            .unwrap_err()
+            .to_string()
+            .contains("sim.n = 0"));
     }
 
     #[test]

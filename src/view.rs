@@ -393,7 +393,7 @@ pub fn write(scene: &Scene, path: &Path) -> Result<()> {
     }
     // a page is for reading (and serving), so not the usual 0600
     let mut staged = crate::table::io::Staged::new();
-    staged.shared_text(path, &text)?;
+    staged.text(path, &text)?;
     staged.commit()
 }
 

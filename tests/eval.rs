@@ -79,13 +79,32 @@ fn eval_writes_trials_and_a_summary_with_every_cell() {
         .unwrap()
         .as_primitive::<arrow::datatypes::Float64Type>();
     let m = b.column_by_name("metric").unwrap().as_string::<i32>();
+    let successes = b
+        .column_by_name("successes")
+        .unwrap()
+        .as_primitive::<arrow::datatypes::UInt32Type>();
+    let trial_steps = b
+        .column_by_name("trial_steps")
+        .unwrap()
+        .as_primitive::<arrow::datatypes::UInt32Type>();
     for i in 0..b.num_rows() {
         if m.value(i) == "nr" {
             assert!(v.value(i) > 0.0 && v.value(i) <= 1.0);
         } else {
             assert!(lo.value(i) <= v.value(i) && v.value(i) <= hi.value(i));
+            // 20 steps are shorter than every BallPlay rule's phases (the
+            // dribble's late condition starts at step 100): never a success
+            assert_eq!(trial_steps.value(i), 20);
+            assert_eq!(successes.value(i), 0, "a 20-step trial scored a success");
         }
     }
+    // the report says how long the trials were and that they were too short
+    let rep = ok(&["report", out.to_str().unwrap()]);
+    assert!(rep.contains("trials of 20 policy steps"), "{rep}");
+    assert!(
+        rep.contains("Layup trials of 20 steps are shorter than its success rule needs (301)"),
+        "{rep}"
+    );
 }
 
 #[test]

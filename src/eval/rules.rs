@@ -101,6 +101,21 @@ impl Rule {
         }
     }
 
+    /// The shortest trial on which the rule can reach a verdict, policy
+    /// steps: one step past the phase boundary for the phase rules (a
+    /// dribble's late condition starts at step 100, a layup's and a shot's
+    /// at 300), one more than the counted steps for the counting rules. A
+    /// shorter trial is never a success ([`Judge::success`]).
+    pub fn min_steps(self) -> usize {
+        match self {
+            Rule::Run => 101,
+            Rule::Layup | Rule::Shot { .. } => 301,
+            Rule::Pickup | Rule::Getup | Rule::Place { .. } => 61,
+            Rule::Drink | Rule::Pour | Rule::MultiPour => 31,
+            Rule::RunNoObject => 1,
+        }
+    }
+
     /// The trial length the reference evaluates this rule over, policy
     /// steps (600 = 10 s; ParaHome rules are bounded by their buffers).
     pub fn trial_steps(self) -> usize {
@@ -216,8 +231,12 @@ impl Judge {
         self.count += c as usize;
     }
 
-    /// The verdict after the last step.
+    /// The verdict after the last step: never a success for a trial
+    /// shorter than [`Rule::min_steps`] (its late phase unseen).
     pub fn success(&self) -> bool {
+        if self.n < self.rule.min_steps() {
+            return false;
+        }
         match self.rule {
             Rule::Run | Rule::Layup | Rule::Shot { .. } => self.early && self.late_ok,
             Rule::Pickup | Rule::Getup | Rule::Place { .. } => self.count > 60,
@@ -248,6 +267,29 @@ mod tests {
             j.update(&p);
         }
         j.success()
+    }
+
+    #[test]
+    fn a_trial_shorter_than_its_rule_is_never_a_success() {
+        // a humanoid lying on the floor, the ball away and still: every
+        // phase rule's late condition fails from its first late step, so
+        // only a trial too short to reach it could pass
+        let lying = |_n: usize| probe(0.1, 0.0, [3.0, 0.0, 0.1], 0.0);
+        let standing = |_n: usize| probe(0.9, 0.0, [0.5, 0.0, 1.0], 0.0);
+        for (rule, early) in [
+            (Rule::Run, probe(0.9, 0.0, [0.5, 0.0, 1.0], 1.0)),
+            (Rule::Layup, probe(0.9, 0.0, [0.5, 0.0, 2.0], 0.0)),
+            (Rule::Shot { target_z: 1.0 }, standing(0)),
+        ] {
+            for steps in [1, 50, 100, rule.min_steps() - 1] {
+                let seq = (0..steps).map(|n| if n == 0 { early.clone() } else { lying(n) });
+                assert!(!judge(rule, seq), "{rule:?} over {steps} steps");
+            }
+        }
+        // counting rules: a trial of fewer steps than counted cannot pass
+        let held = |_n: usize| probe(0.9, 0.0, [0.2, 0.0, 1.0], 0.0);
+        assert!(!judge(Rule::Pickup, (0..60).map(held)));
+        assert!(judge(Rule::Pickup, (0..61).map(held)));
     }
 
     #[test]

@@ -179,7 +179,7 @@ pub fn derive(
     opts: &DeriveOptions,
 ) -> Result<ClipFrames, DeriveError> {
     let d = layout.columns();
-    if data.len() % d != 0 {
+    if !data.len().is_multiple_of(d) {
         return Err(DeriveError::Columns {
             got: data.len(),
             expected: d,

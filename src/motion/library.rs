@@ -5,6 +5,76 @@ use super::clip::ClipFrames;
 use super::layout::Skeleton;
 use super::state::State;
 use crate::table::clips::ClipRow;
+use anyhow::{bail, Result};
+
+/// Slots of the skill condition c: a one-hot of the class id (64 in
+/// SkillMimic's observation, Section 4 of the SkillMimic-V2 paper's
+/// appendix; `rl::humanoid` builds it). A class id must be below this.
+pub const CONDITION_SLOTS: usize = 64;
+
+/// Why a clip cannot be used, or `None` when it can: a clip needs two
+/// consecutive valid frames (one transition, from which its velocities,
+/// its training references and the history encoder's windows are made).
+pub fn unusable(c: &ClipFrames) -> Option<String> {
+    let valid = c.valid_frames();
+    if valid == 0 {
+        return Some(format!(
+            "no valid frame (all {} rows are zero or missing)",
+            c.frames
+        ));
+    }
+    if !(1..c.frames).any(|i| c.valid[i] && c.valid[i - 1]) {
+        return Some(format!(
+            "{valid} valid frame(s) of {} and no two consecutive ones; a clip needs at least one \
+             pair of consecutive valid frames",
+            c.frames
+        ));
+    }
+    None
+}
+
+/// The class rule every stage applies (ingest on its clip list, later
+/// stages on `clips.parquet`): each class id is below
+/// [`CONDITION_SLOTS`], and class ids and skills correspond one to one,
+/// so that the condition tells every skill apart. `clips` yields
+/// (clip name, skill, class id).
+///
+/// # Errors
+/// Names the clip whose class does not fit, or the two skills (and a
+/// clip of each) that share a class, or the two classes of one skill.
+pub fn check_classes<'a>(clips: impl IntoIterator<Item = (&'a str, &'a str, u32)>) -> Result<()> {
+    use std::collections::BTreeMap;
+    let mut by_class: BTreeMap<u32, (&str, &str)> = BTreeMap::new();
+    let mut by_skill: BTreeMap<&str, (u32, &str)> = BTreeMap::new();
+    for (name, skill, class) in clips {
+        if class as usize >= CONDITION_SLOTS {
+            bail!(
+                "clip {name} (skill {skill}): class id {class} does not fit the {CONDITION_SLOTS}-slot \
+                 skill condition (ids 0-{}); renumber the skill (a folder clip's class is the first \
+                 three characters of its file name, a manifest's its `class` key)",
+                CONDITION_SLOTS - 1
+            );
+        }
+        if let Some((other, other_name)) = by_class.insert(class, (skill, name)) {
+            if other != skill {
+                bail!(
+                    "class id {class} is given to two skills, {other} (clip {other_name}) and {skill} \
+                     (clip {name}): the skill condition could not tell them apart; give each skill \
+                     its own class id"
+                );
+            }
+        }
+        if let Some((other, other_name)) = by_skill.insert(skill, (class, name)) {
+            if other != class {
+                bail!(
+                    "skill {skill} has two class ids, {other} (clip {other_name}) and {class} (clip \
+                     {name}); give every clip of a skill the same class id"
+                );
+            }
+        }
+    }
+    Ok(())
+}
 
 /// The ingested clips of one run folder.
 #[derive(Debug, Clone)]
@@ -18,6 +88,37 @@ pub struct MotionLib {
 }
 
 impl MotionLib {
+    /// Check what every later stage needs before it starts: every clip
+    /// usable ([`unusable`]) and the class rule ([`check_classes`]).
+    /// `source` names where the clips came from, for the messages.
+    ///
+    /// # Errors
+    /// Lists every unusable clip by name and skill, or the class fault.
+    pub fn check(&self, source: &str) -> Result<()> {
+        let bad: Vec<String> = self
+            .clips
+            .iter()
+            .zip(&self.frames)
+            .filter_map(|(c, f)| {
+                unusable(f).map(|why| format!("clip {} (skill {}): {why}", c.name, c.skill))
+            })
+            .collect();
+        if !bad.is_empty() {
+            bail!(
+                "{source}: {} clip(s) cannot be used; ingest again without them (`skillaug ingest` \
+                 refuses such clips, `--skip-bad` leaves them out):\n  {}",
+                bad.len(),
+                bad.join("\n  ")
+            );
+        }
+        check_classes(
+            self.clips
+                .iter()
+                .map(|c| (c.name.as_str(), c.skill.as_str(), c.class as u32)),
+        )
+        .map_err(|e| anyhow::anyhow!("{source}: {e}"))
+    }
+
     /// The state of frame `frame` of clip `clip` (`None` if missing).
     pub fn state(&self, clip: usize, frame: usize) -> Option<State> {
         self.frames.get(clip)?.state(frame)
@@ -39,5 +140,47 @@ impl MotionLib {
         (0..self.clips.len())
             .filter(|i| self.clips[*i].skill == skill)
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn class_rule_refuses_large_ids_and_shared_classes() {
+        assert!(check_classes([("a", "run", 13), ("b", "run", 13), ("c", "lrun", 11)]).is_ok());
+        let e = check_classes([("099_x", "x", 99)]).unwrap_err().to_string();
+        assert!(
+            e.contains("099_x") && e.contains("99") && e.contains("64"),
+            "{e}"
+        );
+        assert!(check_classes([("a", "s", 63)]).is_ok());
+        assert!(check_classes([("a", "s", 64)]).is_err());
+        let e = check_classes([("a", "run", 13), ("b", "walk", 13)])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("run") && e.contains("walk") && e.contains("13"),
+            "{e}"
+        );
+        let e = check_classes([("a", "run", 13), ("b", "run", 14)])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("two class ids"), "{e}");
+    }
+
+    #[test]
+    fn a_clip_needs_two_consecutive_valid_frames() {
+        let mut c = ClipFrames {
+            frames: 5,
+            valid: vec![false; 5],
+            ..Default::default()
+        };
+        assert!(unusable(&c).unwrap().contains("no valid frame"));
+        c.valid = vec![true, false, true, false, true];
+        assert!(unusable(&c).unwrap().contains("no two consecutive"));
+        c.valid = vec![false, false, true, true, false];
+        assert!(unusable(&c).is_none());
     }
 }

@@ -70,7 +70,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Slots of the skill condition (one-hot of the class id).
-pub const CONDITION_SLOTS: usize = 64;
+pub use crate::motion::library::CONDITION_SLOTS;
 
 /// Which imitation reward trains the policy.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -249,7 +249,8 @@ pub fn write_observation(
         put(&(inv * vec3(&s.obj_linvel[3 * k..])).to_array());
         put(&(inv * Vector::from(w.object_angvel_world(k))).to_array());
     }
-    let cond = i + (class as usize).min(CONDITION_SLOTS - 1);
+    // load_library refuses class ids >= CONDITION_SLOTS (motion::library::check_classes).
+    let cond = i + class as usize;
     out[cond] = 1.0;
 }
 
@@ -927,6 +928,11 @@ impl<'a> HumanoidEnv<'a> {
             );
         }
         ensure!(n > 0, "train: at least one environment is needed");
+        crate::motion::library::check_classes(
+            lib.clips
+                .iter()
+                .map(|c| (c.name.as_str(), c.skill.as_str(), c.class as u32)),
+        )?;
         let ctx = Ctx {
             lib,
             sk,

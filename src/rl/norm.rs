@@ -53,7 +53,7 @@ impl RunningNorm {
     pub fn update(&mut self, data: &[f32]) -> Result<()> {
         let d = self.dim();
         ensure!(
-            d > 0 && data.len() % d == 0,
+            d > 0 && data.len().is_multiple_of(d),
             "normaliser: {} values are not rows of {d}",
             data.len()
         );

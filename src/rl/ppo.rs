@@ -610,7 +610,7 @@ impl Agent {
 
     fn obs_tensor(&self, obs: &[f32]) -> Result<Tensor> {
         ensure!(
-            obs.len() % self.obs_dim == 0,
+            obs.len().is_multiple_of(self.obs_dim),
             "ppo: {} observation values are not rows of {}",
             obs.len(),
             self.obs_dim
@@ -920,6 +920,8 @@ impl Agent {
         let tmp_s = tmp_name(&sp);
         candle_core::safetensors::save(&map, &tmp_w)
             .with_context(|| format!("writing {}", tmp_w.display()))?;
+        // candle's writer leaves its own temporary file's 0600
+        crate::table::io::set_fresh_file_mode(&tmp_w)?;
         std::fs::write(&tmp_s, serde_json::to_vec_pretty(&side)?)
             .with_context(|| format!("writing {}", tmp_s.display()))?;
         std::fs::rename(&tmp_w, path)?;

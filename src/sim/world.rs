@@ -151,6 +151,48 @@ impl Default for SimOptions {
     }
 }
 
+impl crate::config::Validate for SimOptions {
+    /// Rates and counts positive and bounded (a zero or infinite step would
+    /// turn a run of seconds into no steps or into `usize::MAX` of them),
+    /// coefficients finite and non-negative, restitution in [0, 1].
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.range("physics_hz", self.physics_hz, 1.0, 100_000.0)?;
+        c.count("substeps", self.substeps as u64, 1, 1000)?;
+        c.count("solver_iterations", self.solver_iterations as u64, 1, 1000)?;
+        c.count("pgs_iterations", self.pgs_iterations as u64, 1, 1000)?;
+        c.count(
+            "stabilization_iterations",
+            self.stabilization_iterations as u64,
+            0,
+            1000,
+        )?;
+        c.range("min_mass", self.min_mass as f64, 0.0, 1e4)?;
+        c.range("hand_min_mass", self.hand_min_mass as f64, 0.0, 1e4)?;
+        c.non_negative("friction", self.friction as f64)?;
+        c.range(
+            "ground_restitution",
+            self.ground_restitution as f64,
+            0.0,
+            1.0,
+        )?;
+        c.positive("ground_contact_hz", self.ground_contact_hz as f64)?;
+        c.positive(
+            "max_depenetration_velocity",
+            self.max_depenetration_velocity as f64,
+        )?;
+        c.non_negative("angular_damping", self.angular_damping as f64)?;
+        c.range(
+            "prediction_distance",
+            self.prediction_distance as f64,
+            0.0,
+            1.0,
+        )?;
+        c.range("soft_ccd", self.soft_ccd as f64, 0.0, 10.0)?;
+        Ok(())
+    }
+}
+
 impl SimOptions {
     /// Defaults for a data rate: 120 Hz physics and 2 substeps for 60 fps
     /// data, 60 Hz and 2 substeps for ParaHome's 30 fps.
@@ -387,6 +429,7 @@ impl World {
         if model.bodies.is_empty() || model.bodies[0].parent.is_some() {
             bail!("the humanoid model has no root body");
         }
+        crate::config::Validate::validate(opts, "sim")?;
         let mut pw = PhysicsWorld::new();
         pw.gravity = Vector::new(0.0, 0.0, -9.81);
         let ip = &mut pw.integration_parameters;

@@ -28,6 +28,14 @@ pub struct StgConfig {
     pub per_target: bool,
 }
 
+impl crate::config::Validate for StgConfig {
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.range("tau", self.tau, 0.0, 1.0)?;
+        c.count("n_max", self.n_max as u64, 0, 10_000)
+    }
+}
+
 impl Default for StgConfig {
     fn default() -> Self {
         StgConfig {
@@ -45,6 +53,7 @@ pub fn run(common: &Common, per_target_flag: bool) -> Result<()> {
     let started = Instant::now();
     let mut cfg: StgConfig = common.settings("build-stg")?;
     cfg.per_target |= per_target_flag;
+    let _lock = common.lock_output("build-stg")?;
     let lib = table::load_library(common.input_dir())?;
     if lib.skeleton == Skeleton::ParaHome {
         bail!(
@@ -76,6 +85,10 @@ pub fn run(common: &Common, per_target_flag: bool) -> Result<()> {
 
     let resolved = common.resolved_toml("build-stg", &cfg)?;
     let meta = table::Meta::new(&lib.clips[0].dataset, &resolved)
+        .with(
+            "ingest_id",
+            table::ingest_id(&common.input_dir().join("clips.parquet"))?,
+        )
         .with(
             "direction",
             if cfg.per_target {

@@ -54,6 +54,22 @@ pub struct EvalConfig {
     pub record: usize,
 }
 
+impl crate::config::Validate for EvalConfig {
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.count("trials", self.trials as u64, 1, 1 << 32)?;
+        c.count("envs", self.envs as u64, 1, 1 << 20)?;
+        c.count("steps", self.steps as u64, 0, 1 << 24)?;
+        c.count("record", self.record as u64, 0, self.trials as u64)?;
+        for m in &self.metrics {
+            c.holds(["sr", "tsr", "nsr", "nr"].contains(&m.as_str()), || {
+                format!("metrics: unknown metric `{m}` (sr, tsr, nsr, nr)")
+            })?;
+        }
+        Ok(())
+    }
+}
+
 impl Default for EvalConfig {
     fn default() -> Self {
         EvalConfig {
@@ -280,16 +296,9 @@ impl Evaluator<'_> {
 /// Run the stage. `policy` is a `skillaug train` output folder.
 pub fn run(common: &Common, policy: &Path) -> Result<()> {
     let cfg: EvalConfig = common.settings("eval")?;
-    ensure!(
-        cfg.trials > 0 && cfg.envs > 0,
-        "eval.trials and eval.envs must be > 0"
-    );
-    for m in &cfg.metrics {
-        ensure!(
-            ["sr", "tsr", "nsr", "nr"].contains(&m.as_str()),
-            "eval.metrics: unknown metric `{m}` (sr, tsr, nsr, nr)"
-        );
-    }
+    let _lock = common.lock_output("eval")?;
+    let input = common.input_dir();
+    let lib = table::load_library(input)?;
     let mp = policy.join("policy.meta.json");
     let meta: PolicyMeta = serde_json::from_slice(&std::fs::read(&mp).with_context(|| {
         format!(
@@ -302,8 +311,6 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         &policy.join("policy.safetensors"),
         &candle_core::Device::Cpu,
     )?;
-    let input = common.input_dir();
-    let lib = table::load_library(input)?;
     let dataset = &lib.clips[0].dataset;
     if *dataset != meta.dataset || lib.skeleton.name() != meta.skeleton {
         bail!(
@@ -415,6 +422,19 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
                 ..base.clone()
             };
             cells.push(cell("tsr", &a, &b, Some(r), env));
+        }
+    }
+    for c in &cells {
+        if let (Some(r), Some(n)) = (c.rule, c.env.fixed_length) {
+            if n < r.min_steps() && c.metric == "sr" {
+                eprintln!(
+                    "warning: eval.steps = {n}: {} trials are shorter than its success rule \
+                     needs ({} steps; its own length is {}): every one is scored as a failure",
+                    c.to,
+                    r.min_steps(),
+                    r.trial_steps()
+                );
+            }
         }
     }
     let dataset = lib.clips[0].dataset.clone();

@@ -35,6 +35,21 @@ pub struct IngestConfig {
     pub skip_bad: bool,
 }
 
+impl crate::config::Validate for IngestConfig {
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.holds(
+            self.fps == 0.0 || (self.fps.is_finite() && (1.0..=10_000.0).contains(&self.fps)),
+            || {
+                format!(
+                    "fps = {}: must be 0 (the manifest's rate) or a frame rate in [1, 10000] Hz",
+                    self.fps
+                )
+            },
+        )
+    }
+}
+
 impl Default for IngestConfig {
     fn default() -> Self {
         IngestConfig {
@@ -108,6 +123,9 @@ pub(crate) fn ingest_clip(src: &ClipSource, set: &ClipSet, cfg: &IngestConfig) -
         n_objects: objects.len(),
     };
     let frames = clip::derive(&m.data, layout, &opts)?;
+    if let Some(why) = crate::motion::library::unusable(&frames) {
+        bail!("{why}");
+    }
     Ok(Ingested {
         src: src.clone(),
         sha256,
@@ -141,6 +159,11 @@ pub(crate) fn clip_set(common: &Common, cfg: &IngestConfig) -> Result<ClipSet> {
     if set.clips.is_empty() {
         bail!("no clips selected");
     }
+    crate::motion::library::check_classes(
+        set.clips
+            .iter()
+            .map(|c| (c.name.as_str(), c.skill.as_str(), c.class as u32)),
+    )?;
 
     Ok(set)
 }
@@ -150,6 +173,7 @@ pub fn run(common: &Common, skip_bad_flag: bool) -> Result<()> {
     let started = Instant::now();
     let mut cfg: IngestConfig = common.settings("ingest")?;
     cfg.skip_bad |= skip_bad_flag;
+    let _lock = common.lock_output("ingest")?;
     let set = clip_set(common, &cfg)?;
 
     let bar = progress::bar(set.clips.len() as u64, "ingest", common.args.quiet);
@@ -240,6 +264,20 @@ pub fn run(common: &Common, skip_bad_flag: bool) -> Result<()> {
 
     if !bad.is_empty() {
         eprintln!("skipped {} bad clip(s):\n  {}", bad.len(), bad.join("\n  "));
+        let mut lost: Vec<&str> = set
+            .clips
+            .iter()
+            .map(|c| c.skill.as_str())
+            .filter(|s| !good.iter().any(|g| g.src.skill == *s))
+            .collect();
+        lost.sort_unstable();
+        lost.dedup();
+        if !lost.is_empty() {
+            eprintln!(
+                "warning: skill(s) left with no clip, not in the tables: {}",
+                lost.join(", ")
+            );
+        }
     }
     if !common.args.quiet {
         print_summary(&good, &common.args.out, started.elapsed().as_secs_f64());

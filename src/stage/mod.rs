@@ -63,8 +63,17 @@ impl Common {
         self.args.from.as_deref().unwrap_or(&self.args.out)
     }
 
+    /// Lock the output folder (`--out`) for `stage` until the guard drops
+    /// ([`crate::table::io::OutputLock`]).
+    pub fn lock_output(&self, stage: &str) -> Result<crate::table::io::OutputLock> {
+        crate::table::io::OutputLock::acquire(&self.args.out, stage)
+    }
+
     /// The resolved settings of `stage`.
-    pub fn settings<T: Serialize + DeserializeOwned + Default>(&self, stage: &str) -> Result<T> {
+    pub fn settings<T: Serialize + DeserializeOwned + Default + config::Validate>(
+        &self,
+        stage: &str,
+    ) -> Result<T> {
         config::resolve(&self.recipe, stage, &self.sets)
     }
 

@@ -46,6 +46,41 @@ pub struct HeSettings {
     pub log_every: usize,
 }
 
+impl crate::config::Validate for HeSettings {
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.count("steps", self.steps as u64, 1, u32::MAX as u64)?;
+        c.count("batch_size", self.batch_size as u64, 1, 1 << 20)?;
+        c.positive("lr", self.lr)?;
+        c.non_negative("lambda_a", self.lambda_a)?;
+        c.non_negative("lambda_b", self.lambda_b)?;
+        c.count("history", self.history as u64, 1, 10_000)?;
+        c.holds(self.embedding == 3, || {
+            format!(
+                "embedding = {}: only mu = 3 is supported (Table 6)",
+                self.embedding
+            )
+        })?;
+        c.count("kernel", self.kernel as u64, 1, self.history as u64)?;
+        c.holds(
+            !self.conv.is_empty() && self.conv.iter().all(|&n| n > 0),
+            || {
+                format!(
+                    "conv = {:?}: needs at least one layer, every size > 0",
+                    self.conv
+                )
+            },
+        )?;
+        c.holds(self.predictor_hidden.iter().all(|&n| n > 0), || {
+            format!(
+                "predictor_hidden = {:?}: every size must be > 0",
+                self.predictor_hidden
+            )
+        })?;
+        c.count("log_every", self.log_every as u64, 1, u64::MAX)
+    }
+}
+
 impl Default for HeSettings {
     fn default() -> Self {
         HeSettings {
@@ -198,15 +233,7 @@ pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
     if let Some(d) = device_flag {
         set.device = d.to_string();
     }
-    if set.embedding != 3 {
-        bail!(
-            "pretrain-he.embedding = {}: only mu = 3 is supported (Table 6)",
-            set.embedding
-        );
-    }
-    if set.steps == 0 || set.batch_size == 0 || set.history == 0 {
-        bail!("pretrain-he: steps, batch_size and history must be positive");
-    }
+    let _lock = common.lock_output("pretrain-he")?;
     let dev = nn::device(&set.device)?;
     let lib = table::load_library(common.input_dir())?;
     let n_objects = lib.frames.iter().map(|f| f.n_objects).max().unwrap_or(0);

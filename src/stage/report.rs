@@ -297,6 +297,9 @@ pub struct MethodRow {
     pub cells: BTreeMap<String, (f64, f64, f64)>,
     /// (from, to) -> TSR %.
     pub tsr: BTreeMap<(String, String), f64>,
+    /// Rule skill -> the longest trial length of its success-rate cells,
+    /// policy steps (empty for summaries written before the column).
+    pub trial_steps: BTreeMap<String, u32>,
 }
 
 /// The rows of one summary file (polars), one per label.
@@ -307,6 +310,16 @@ pub fn load(path: &Path) -> Result<Vec<MethodRow>> {
     let s = |c: &str| frame_strs(&df, c);
     let (label, metric, from, to) = (s("label")?, s("metric")?, s("from_skill")?, s("to_skill")?);
     let values = frame_f64s(&df, "value")?;
+    // summaries written before the column have no trial length
+    let steps = if df
+        .get_column_names()
+        .iter()
+        .any(|c| c.as_str() == "trial_steps")
+    {
+        crate::table::io::frame_u32s(&df, "trial_steps")?
+    } else {
+        Vec::new()
+    };
     let mut rows: Vec<MethodRow> = Vec::new();
     for i in 0..df.height() {
         let v = values[i];
@@ -321,6 +334,10 @@ pub fn load(path: &Path) -> Result<Vec<MethodRow>> {
             }
         };
         let m = metric[i].as_str();
+        if let (Some(&n), true) = (steps.get(i), m != "nr") {
+            let e = r.trial_steps.entry(to[i].clone()).or_insert(0);
+            *e = (*e).max(n);
+        }
         if m == "tsr" {
             r.tsr.insert((from[i].clone(), to[i].clone()), 100.0 * v);
             continue;
@@ -353,6 +370,7 @@ pub fn paper_row(p: &PaperRow) -> MethodRow {
             .iter()
             .map(|(a, b, v)| ((a.to_string(), b.to_string()), *v))
             .collect(),
+        trial_steps: BTreeMap::new(),
     }
 }
 
@@ -493,6 +511,39 @@ pub fn table(rows: &[MethodRow]) -> (Vec<String>, Vec<Vec<String>>) {
     (header, body)
 }
 
+/// Lines saying how long the trials were, and which skills' trials were
+/// too short for their success rule to reach a verdict (scored as
+/// failures, [`crate::eval::rules::Rule::min_steps`]).
+pub fn trial_notes(rows: &[MethodRow]) -> Vec<String> {
+    use crate::eval::rules::Rule;
+    let mut notes = Vec::new();
+    for r in rows.iter().filter(|r| !r.trial_steps.is_empty()) {
+        let mut lengths: Vec<u32> = r.trial_steps.values().copied().collect();
+        lengths.sort_unstable();
+        lengths.dedup();
+        let l: Vec<String> = lengths.iter().map(u32::to_string).collect();
+        notes.push(format!(
+            "{}: trials of {} policy steps",
+            r.label,
+            l.join(" / ")
+        ));
+        for (skill, &n) in &r.trial_steps {
+            if let Some(rule) = Rule::of_skill(skill, 0.0) {
+                if (n as usize) < rule.min_steps() {
+                    notes.push(format!(
+                        "{}: {} trials of {n} steps are shorter than its success rule needs ({}): \
+                         every one is scored as a failure",
+                        r.label,
+                        display_name(skill),
+                        rule.min_steps()
+                    ));
+                }
+            }
+        }
+    }
+    notes
+}
+
 /// Markdown text of a table.
 pub fn markdown(header: &[String], body: &[Vec<String>]) -> String {
     let mut s = format!(
@@ -592,10 +643,21 @@ pub fn run(inputs: &[PathBuf], with_reference: bool, markdown_out: Option<&Path>
     let (h, b) = table(&rows);
     print!("{}", text(&h, &b));
     println!("cells: SR % / eps-NSR % / NR; TSR in %");
+    let notes = trial_notes(&rows);
+    for n in &notes {
+        println!("{n}");
+    }
     if let Some(m) = markdown_out {
         let tmp = m.with_extension("md.tmp");
-        std::fs::write(&tmp, markdown(&h, &b))
-            .with_context(|| format!("cannot write {}", tmp.display()))?;
+        let mut md = markdown(&h, &b);
+        md.push_str("\nCells: SR % / eps-NSR % / NR; TSR in %.\n");
+        for n in &notes {
+            md.push_str(&format!("\n- {n}"));
+        }
+        if !notes.is_empty() {
+            md.push('\n');
+        }
+        std::fs::write(&tmp, md).with_context(|| format!("cannot write {}", tmp.display()))?;
         std::fs::rename(&tmp, m)?;
         println!("wrote {}", m.display());
     }

@@ -47,6 +47,20 @@ const ORDER: [&str; 7] = [
     "report",
 ];
 
+impl crate::config::Validate for RunConfig {
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        for s in &self.stages {
+            c.holds(ORDER.contains(&s.as_str()), || {
+                format!("stages: unknown stage `{s}` (known: {})", ORDER.join(", "))
+            })?;
+        }
+        c.holds(!self.methods.is_empty(), || {
+            "methods: give at least one method".into()
+        })
+    }
+}
+
 impl Default for RunConfig {
     fn default() -> Self {
         RunConfig {
@@ -117,14 +131,6 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
         ..args.clone()
     })?;
     let cfg: RunConfig = common.settings("run")?;
-    for s in &cfg.stages {
-        if !ORDER.contains(&s.as_str()) {
-            bail!(
-                "run.stages: unknown stage `{s}` (known: {})",
-                ORDER.join(", ")
-            );
-        }
-    }
     let parahome = cfg.dataset == "parahome";
     let methods: Vec<(String, super::train::Switches)> = cfg
         .methods
@@ -132,8 +138,7 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
         .map(|m| Ok((m.clone(), parse_method(m, parahome)?)))
         .collect::<Result<_>>()?;
     let out = args.out.clone();
-    std::fs::create_dir_all(&out)
-        .with_context(|| format!("cannot create the output folder {}", out.display()))?;
+    let _lock = common.lock_output("run")?;
     let lock_path = out.join("run.lock.json");
     let mut lock: Lock = match std::fs::read(&lock_path) {
         Ok(b) => serde_json::from_slice(&b)

@@ -71,6 +71,52 @@ pub struct StfConfig {
     pub rewards: String,
 }
 
+impl crate::config::Validate for StfConfig {
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.count("trajectories", self.trajectories as u64, 1, u32::MAX as u64)?;
+        c.count("horizon", self.horizon as u64, 1, 1 << 20)?;
+        c.range("p_e", self.p_e, 0.0, 1.0)?;
+        c.range("p_n", self.p_n, 0.0, 1.0)?;
+        c.holds(self.p_e + self.p_n <= 1.0, || {
+            format!(
+                "p_e + p_n = {} + {}: the start probabilities must sum to at most 1",
+                self.p_e, self.p_n
+            )
+        })?;
+        c.range("lambda_s", self.lambda_s, 0.0, 1e3)?;
+        c.range("lambda_c", self.lambda_c, 0.0, 1e3)?;
+        c.range("lambda_i", self.lambda_i, 0.0, 1e3)?;
+        c.range("tau", self.tau, 0.0, 1.0)?;
+        c.count("n_max", self.n_max as u64, 0, 10_000)?;
+        let check_eps = |name: &str, e: &Eps| -> Result<()> {
+            for (k, v) in [
+                ("root_pos", e.root_pos),
+                ("root_vel", e.root_vel),
+                ("root_rot", e.root_rot),
+                ("root_rot_vel", e.root_rot_vel),
+                ("dof", e.dof),
+                ("dof_vel", e.dof_vel),
+                ("obj_pos", e.obj_pos),
+                ("obj_vel", e.obj_vel),
+                ("obj_rot", e.obj_rot),
+                ("obj_rot_vel", e.obj_rot_vel),
+            ] {
+                c.range(&format!("{name}.{k}"), v, 0.0, 1e3)?;
+            }
+            Ok(())
+        };
+        check_eps("eps", &self.eps)?;
+        for (k, e) in &self.eps_class {
+            c.holds(k.parse::<u32>().is_ok(), || {
+                format!("eps_class.{k}: the key must be a class id (an integer)")
+            })?;
+            check_eps(&format!("eps_class.{k}"), e)?;
+        }
+        Ok(())
+    }
+}
+
 impl Default for StfConfig {
     fn default() -> Self {
         let p = StfParams::default();
@@ -104,54 +150,14 @@ impl Default for StfConfig {
 }
 
 impl StfConfig {
-    /// Check ranges and build the library parameters.
+    /// Build the library parameters (the ranges are checked by
+    /// [`crate::config::Validate`] when the settings are resolved).
     pub fn params(&self) -> Result<(StfParams, AtsParams)> {
-        let prob = |name: &str, v: f64| -> Result<()> {
-            if !(0.0..=1.0).contains(&v) {
-                bail!("sample-stf.{name} = {v}: a probability must lie in [0, 1]");
-            }
-            Ok(())
-        };
-        prob("p_e", self.p_e)?;
-        prob("p_n", self.p_n)?;
-        for (name, v) in [
-            ("lambda_s", self.lambda_s),
-            ("lambda_c", self.lambda_c),
-            ("lambda_i", self.lambda_i),
-            ("tau", self.tau),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                bail!("sample-stf.{name} = {v}: must be a finite number >= 0");
-            }
-        }
-        if self.horizon == 0 {
-            bail!("sample-stf.horizon = 0: a trajectory needs at least one policy step");
-        }
-        let check_eps = |name: &str, e: &Eps| -> Result<()> {
-            let v = [
-                e.root_pos,
-                e.root_vel,
-                e.root_rot,
-                e.root_rot_vel,
-                e.dof,
-                e.dof_vel,
-                e.obj_pos,
-                e.obj_vel,
-                e.obj_rot,
-                e.obj_rot_vel,
-            ];
-            if v.iter().any(|x| !(x.is_finite() && *x >= 0.0)) {
-                bail!("sample-stf.{name}: every radius must be a finite number >= 0 ({e:?})");
-            }
-            Ok(())
-        };
-        check_eps("eps", &self.eps)?;
         let mut eps_class = BTreeMap::new();
         for (k, e) in &self.eps_class {
             let class: u32 = k.parse().with_context(|| {
                 format!("sample-stf.eps_class.{k}: the key must be a class id (an integer)")
             })?;
-            check_eps(&format!("eps_class.{k}"), e)?;
             eps_class.insert(class, *e);
         }
         Ok((
@@ -195,6 +201,11 @@ pub(crate) fn load_edges(
         );
     }
     let edges = table::stg::read(&path)?;
+    table::check_ingest_id(
+        &path,
+        &table::ingest_id(&input.join("clips.parquet"))?,
+        "build-stg",
+    )?;
     for (i, e) in edges.iter().enumerate() {
         let ok = |c: u32, f: u32| {
             lib.frames
@@ -256,6 +267,7 @@ fn load_rewards(path: &Path, lib: &crate::motion::MotionLib, ats: &mut Ats) -> R
 pub fn run(common: &Common) -> Result<()> {
     let started = Instant::now();
     let cfg: StfConfig = common.settings("sample-stf")?;
+    let _lock = common.lock_output("sample-stf")?;
     let (params, ats_params) = cfg.params()?;
     let input = common.input_dir();
     let lib = table::load_library(input)?;
@@ -326,6 +338,7 @@ pub fn run(common: &Common) -> Result<()> {
 
     let resolved = common.resolved_toml("sample-stf", &cfg)?;
     let meta = table::Meta::new(&lib.clips[0].dataset, &resolved)
+        .with("ingest_id", table::ingest_id(&input.join("clips.parquet"))?)
         .with("skeleton", lib.skeleton.name())
         .with("seed", seed.to_string())
         .with("stg_edges", edges.len().to_string())

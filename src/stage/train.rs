@@ -280,46 +280,78 @@ impl TrainConfig {
         }
         c
     }
+}
 
-    fn validate(&self) -> Result<()> {
-        for (k, v) in [("p_e", self.p_e), ("p_n", self.p_n)] {
-            ensure!(
-                (0.0..=1.0).contains(&v),
-                "train.{k} = {v}: a probability must lie in [0, 1]"
-            );
-        }
-        ensure!(
-            self.envs() > 0 && self.steps() > 0,
-            "train.num_envs and train.horizon must be > 0"
-        );
-        ensure!(self.episode_length > 0, "train.episode_length must be > 0");
-        ensure!(self.samples > 0, "train.samples must be > 0");
-        ensure!(
-            self.warm_start_lr.is_finite() && self.warm_start_lr > 0.0,
-            "train.warm_start_lr = {}: must be a finite number > 0",
-            self.warm_start_lr
-        );
-        for (k, v) in [
-            ("contact_radius", self.contact_radius),
-            ("seam_min_loop_s", self.seam_min_loop_s),
-            ("term_key_distance", self.term_key_distance),
-            ("term_object_distance", self.term_object_distance),
-        ] {
-            ensure!(
-                v.is_finite() && v >= 0.0,
-                "train.{k} = {v}: must be a finite number >= 0"
-            );
-        }
+impl crate::config::Validate for TrainConfig {
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.range("p_e", self.p_e, 0.0, 1.0)?;
+        c.range("p_n", self.p_n, 0.0, 1.0)?;
+        c.holds(self.p_e + self.p_n <= 1.0, || {
+            format!(
+                "p_e + p_n = {} + {}: the start probabilities must sum to at most 1",
+                self.p_e, self.p_n
+            )
+        })?;
+        c.count("num_envs", self.envs() as u64, 1, 1 << 20)?;
+        c.count("horizon", self.steps() as u64, 1, 1 << 20)?;
+        c.count("samples", self.samples, 1, u64::MAX)?;
+        c.count("episode_length", self.episode_length as u64, 1, 1 << 24)?;
+        c.finite("fall_height", self.fall_height as f64)?;
+        c.finite("collapse_reward", self.collapse_reward)?;
+        c.positive("contact_radius", self.contact_radius)?;
+        c.non_negative("seam_min_loop_s", self.seam_min_loop_s)?;
+        c.count("seam_masked_min", self.seam_masked_min as u64, 0, 10_000)?;
+        c.non_negative("term_key_distance", self.term_key_distance)?;
+        c.non_negative("term_object_distance", self.term_object_distance)?;
         for (skill, h) in &self.fall_height_by_skill {
-            ensure!(
-                h.is_finite(),
-                "train.fall_height_by_skill.{skill} = {h}: must be finite"
-            );
+            c.finite(&format!("fall_height_by_skill.{skill}"), *h as f64)?;
         }
-        ensure!(
-            self.checkpoint_every > 0,
-            "train.checkpoint_every must be > 0"
-        );
+        c.count(
+            "warm_start_epochs",
+            self.warm_start_epochs as u64,
+            0,
+            1 << 20,
+        )?;
+        c.count("warm_start_copies", self.warm_start_copies as u64, 0, 1000)?;
+        c.positive("warm_start_lr", self.warm_start_lr)?;
+        c.count("checkpoint_every", self.checkpoint_every, 1, u64::MAX)?;
+        let o = &self.ppo;
+        let p = crate::config::Check::new("train.ppo");
+        if let Some(h) = &o.hidden {
+            p.holds(!h.is_empty() && h.iter().all(|&n| n > 0), || {
+                format!("hidden = {h:?}: needs at least one layer, every size > 0")
+            })?;
+        }
+        for (k, v) in [
+            ("lr", o.lr),
+            ("sigma", o.sigma),
+            ("clip", o.clip),
+            ("kl_threshold", o.kl_threshold),
+        ] {
+            if let Some(v) = v {
+                p.positive(k, v)?;
+            }
+        }
+        for (k, v) in [
+            ("critic_coef", o.critic_coef),
+            ("bounds_coef", o.bounds_coef),
+        ] {
+            if let Some(v) = v {
+                p.non_negative(k, v)?;
+            }
+        }
+        for (k, v) in [("gamma", o.gamma), ("lambda", o.lambda)] {
+            if let Some(v) = v {
+                p.range(k, v, 0.0, 1.0)?;
+            }
+        }
+        if let Some(n) = o.minibatch {
+            p.count("minibatch", n as u64, 1, 1 << 30)?;
+        }
+        if let Some(n) = o.epochs {
+            p.count("epochs", n as u64, 1, 1000)?;
+        }
         Ok(())
     }
 }
@@ -766,7 +798,8 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
     cfg.stf |= sw.stf;
     cfg.ats |= sw.ats;
     cfg.he |= sw.he;
-    cfg.validate()?;
+    crate::config::Validate::validate(&cfg, "train")?;
+    let _lock = common.lock_output("train")?;
     let dev = crate::nn::device(sw.device.as_deref().unwrap_or("cpu"))?;
     let stf_cfg: StfConfig = common.settings("sample-stf")?;
     let s = setup_lib(
@@ -1036,12 +1069,9 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
         iterations: iteration,
         samples,
     };
-    std::fs::write(
-        out.join("policy.meta.json"),
-        serde_json::to_vec_pretty(&meta)?,
-    )?;
     write_metrics(&out, &metrics, &resolved, &dataset)?;
     let mut o = super::Outputs::new(&out)?;
+    o.text("policy.meta.json", &serde_json::to_string_pretty(&meta)?)?;
     o.text("train.resolved.toml", &resolved)?;
     o.commit()?;
     if !quiet {

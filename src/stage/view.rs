@@ -143,6 +143,11 @@ pub fn run(req: &ViewRequest) -> Result<usize> {
 
     if let Some(p) = &req.stf {
         let trajs = crate::table::stf::read_trajectories(p)?;
+        crate::table::check_ingest_id(
+            p,
+            &crate::table::ingest_id(&req.from.join("clips.parquet"))?,
+            "sample-stf",
+        )?;
         let chosen: Vec<_> = if req.trajs.is_empty() {
             trajs.iter().take(max).collect()
         } else {

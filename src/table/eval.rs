@@ -49,6 +49,8 @@ pub struct SummaryRow {
     pub to: String,
     /// Trials.
     pub trials: u32,
+    /// Policy steps of the cell's longest trial (the trial length).
+    pub trial_steps: u32,
     /// Successes (0 for NR).
     pub successes: u32,
     /// Success rate (NR: the mean SM reward per step).
@@ -124,6 +126,12 @@ pub fn summary_columns() -> Vec<ColumnSpec> {
         ColumnSpec::new("from_skill", Utf8, false, "start skill"),
         ColumnSpec::new("to_skill", Utf8, false, "condition / rule skill"),
         ColumnSpec::new("trials", UInt32, false, "trials in the cell"),
+        ColumnSpec::new(
+            "trial_steps",
+            UInt32,
+            false,
+            "policy steps of the cell's longest trial (the trial length); a trial shorter than its success rule's phases is never a success",
+        ),
         ColumnSpec::new("successes", UInt32, false, "successful trials (0 for nr)"),
         ColumnSpec::new(
             "value",
@@ -197,6 +205,9 @@ pub fn summary_batch(rows: &[SummaryRow]) -> Result<RecordBatch> {
         s(&|r| &r.from),
         s(&|r| &r.to),
         Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.trials))),
+        Arc::new(UInt32Array::from_iter_values(
+            rows.iter().map(|r| r.trial_steps),
+        )),
         Arc::new(UInt32Array::from_iter_values(
             rows.iter().map(|r| r.successes),
         )),
@@ -285,6 +296,7 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
             from: f[i].clone(),
             to: t[i].clone(),
             trials: n[i],
+            trial_steps: cell.iter().map(|r| r.steps).max().unwrap_or(0),
             successes: if nr { 0 } else { k[i] },
             value: if nr {
                 sm[i]
@@ -301,12 +313,13 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
 /// A plain text table of a summary.
 pub fn render(rows: &[SummaryRow]) -> String {
     let mut s = format!(
-        "{:<10} {:<6} {:<16} {:<16} {:>7} {:>9} {:>17}  {}\n",
+        "{:<10} {:<6} {:<16} {:<16} {:>7} {:>6} {:>9} {:>17}  {}\n",
         "method",
         "metric",
         "from",
         "to",
         "trials",
+        "steps",
         "value",
         "95% interval",
         "standing at 100/200/400/600"
@@ -327,12 +340,13 @@ pub fn render(rows: &[SummaryRow]) -> String {
             .map(|x| format!("{:.0}%", 100.0 * x))
             .collect();
         s += &format!(
-            "{:<10} {:<6} {:<16} {:<16} {:>7} {:>9} {:>17}  {}\n",
+            "{:<10} {:<6} {:<16} {:<16} {:>7} {:>6} {:>9} {:>17}  {}\n",
             r.label,
             r.metric,
             r.from,
             r.to,
             r.trials,
+            r.trial_steps,
             v,
             ci,
             standing.join(" / ")
@@ -344,10 +358,11 @@ pub fn render(rows: &[SummaryRow]) -> String {
 /// An `eval_summary` file as a polars frame, its columns checked.
 pub fn summary_frame(path: &std::path::Path) -> Result<DataFrame> {
     let df = super::io::read_frame(path)?;
-    // the standing fractions came later: summaries without them still read
+    // the standing fractions and the trial length came later: summaries
+    // without them still read
     for c in summary_columns()
         .into_iter()
-        .filter(|c| !c.name.starts_with("standing_"))
+        .filter(|c| !c.name.starts_with("standing_") && c.name != "trial_steps")
     {
         if df.column(c.name).is_err() {
             anyhow::bail!(

@@ -5,7 +5,7 @@
 //! written ([`Staged::commit`]). A failure before that leaves the folder as it
 //! was: nothing half-written, nothing already there lost.
 
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use arrow::record_batch::RecordBatch;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use parquet::arrow::ArrowWriter;
@@ -28,12 +28,16 @@ impl Staged {
         Self::default()
     }
 
+    /// A temporary file beside `dest`, created with mode 0666 less the
+    /// process's umask (what `File::create` gives), not tempfile's 0600:
+    /// the mode survives the rename, and an output must get the mode the
+    /// umask implies whichever writer made it.
     fn temp_for(dest: &Path) -> Result<NamedTempFile> {
-        Self::temp_with(dest, None)
+        Self::temp_with(dest, Some(0o666))
     }
 
-    /// A temporary file beside `dest`; `mode` (unix permission bits)
-    /// replaces the temporary file's 0600.
+    /// A temporary file beside `dest`; `mode` (unix permission bits, less
+    /// the umask as `open(2)` applies it) replaces tempfile's 0600.
     fn temp_with(dest: &Path, mode: Option<u32>) -> Result<NamedTempFile> {
         let dir = dest
             .parent()
@@ -95,31 +99,59 @@ impl Staged {
 
     /// Stage a text file.
     pub fn text(&mut self, dest: &Path, text: &str) -> Result<()> {
-        self.text_with(dest, text, None)
-    }
-
-    /// Stage a text file for others to read (a page): mode 0644.
-    pub fn shared_text(&mut self, dest: &Path, text: &str) -> Result<()> {
-        self.text_with(dest, text, Some(0o644))
-    }
-
-    fn text_with(&mut self, dest: &Path, text: &str, mode: Option<u32>) -> Result<()> {
-        let mut tmp = Self::temp_with(dest, mode)?;
+        let mut tmp = Self::temp_for(dest)?;
         tmp.write_all(text.as_bytes())?;
         tmp.flush()?;
         self.files.push((tmp, dest.to_path_buf()));
         Ok(())
     }
 
-    /// Rename every staged file into place.
+    /// Rename every staged file into place, each with the mode a new file
+    /// gets in its folder ([`fresh_file_mode`]): a writer that replaced the
+    /// temporary file by its own (candle's safetensors writer renames a
+    /// 0600 file of its own onto the path) does not decide the mode.
     pub fn commit(self) -> Result<()> {
         for (tmp, dest) in self.files {
+            set_fresh_file_mode(tmp.path())?;
             tmp.as_file().sync_all()?;
             tmp.persist(&dest)
                 .map_err(|e| anyhow!("cannot move output into {}: {}", dest.display(), e.error))?;
         }
         Ok(())
     }
+}
+
+/// The permission bits a file created now in `dir` gets (0666 less the
+/// umask, or what the folder's default ACL gives), found by creating and
+/// removing a probe file: the umask cannot be read without changing it.
+#[cfg(unix)]
+pub fn fresh_file_mode(dir: &Path) -> Result<u32> {
+    use std::os::unix::fs::PermissionsExt;
+    let probe = tempfile::Builder::new()
+        .prefix(".skillaug-mode-")
+        .permissions(std::fs::Permissions::from_mode(0o666))
+        .tempfile_in(dir)
+        .with_context(|| format!("cannot create a file in {}", dir.display()))?;
+    Ok(probe.as_file().metadata()?.permissions().mode() & 0o777)
+}
+
+/// Give the file at `path` the mode a new file gets in its folder
+/// ([`fresh_file_mode`]); a no-op off unix.
+pub fn set_fresh_file_mode(path: &Path) -> Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let mode = fresh_file_mode(dir)?;
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode))
+            .with_context(|| format!("cannot set the mode of {}", path.display()))?;
+    }
+    #[cfg(not(unix))]
+    let _ = path;
+    Ok(())
 }
 
 /// A table read back: its batches and its key-value metadata.
@@ -209,4 +241,105 @@ pub fn frame_u32s(df: &polars::prelude::DataFrame, name: &str) -> Result<Vec<u32
     let col = df.column(name)?.cast(&polars::prelude::DataType::UInt32)?;
     let col = col.u32()?;
     Ok((0..col.len()).map(|i| col.get(i).unwrap_or(0)).collect())
+}
+
+/// Name of the lock file a stage holds in its output folder.
+pub const LOCK_FILE: &str = ".skillaug.lock";
+
+/// An exclusive lock on an output folder, held by one stage from its start
+/// to its end, so that two runs never write into one folder at once (their
+/// outputs would mix). It is an advisory `flock` on `DIR/.skillaug.lock`
+/// (`std::fs::File::try_lock`): the kernel releases it when the holder
+/// exits, so the lock file a killed process leaves behind blocks nobody.
+/// On drop the lock file is removed, and the folder too when the lock
+/// created it and it is still empty (a stage that failed leaves nothing).
+pub struct OutputLock {
+    dir: PathBuf,
+    path: PathBuf,
+    created: bool,
+    _file: std::fs::File,
+}
+
+impl OutputLock {
+    /// Lock `dir` (created if missing) for `stage`.
+    ///
+    /// # Errors
+    /// Another live process holds the lock (the message names the folder
+    /// and, when it could be read, the holder's stage and pid), or the
+    /// folder or lock file cannot be created.
+    pub fn acquire(dir: &Path, stage: &str) -> Result<OutputLock> {
+        use std::fs::TryLockError;
+        let created = !dir.exists();
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create the output folder {}", dir.display()))?;
+        let path = dir.join(LOCK_FILE);
+        loop {
+            let mut file = std::fs::OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(&path)
+                .with_context(|| format!("cannot create the lock file {}", path.display()))?;
+            match file.try_lock() {
+                Ok(()) => {}
+                Err(TryLockError::WouldBlock) => {
+                    let holder = std::fs::read_to_string(&path).unwrap_or_default();
+                    let holder = holder.trim();
+                    bail!(
+                        "{} is being written by another skillaug process{}; wait for it to end \
+                         or give another --out (the lock, {}, frees itself when that process \
+                         exits)",
+                        dir.display(),
+                        if holder.is_empty() {
+                            String::new()
+                        } else {
+                            format!(" ({holder})")
+                        },
+                        path.display()
+                    );
+                }
+                Err(TryLockError::Error(e)) => {
+                    return Err(e).with_context(|| format!("cannot lock {}", path.display()))
+                }
+            }
+            // A holder that finished removed the file it had locked; then
+            // the lock taken here is on a file no one else will open: retry.
+            if !Self::is_current(&file, &path) {
+                continue;
+            }
+            file.set_len(0)?;
+            writeln!(file, "skillaug {stage}, pid {}", std::process::id())?;
+            return Ok(OutputLock {
+                dir: dir.to_path_buf(),
+                path,
+                created,
+                _file: file,
+            });
+        }
+    }
+
+    #[cfg(unix)]
+    fn is_current(file: &std::fs::File, path: &Path) -> bool {
+        use std::os::unix::fs::MetadataExt;
+        match (file.metadata(), std::fs::metadata(path)) {
+            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+            _ => false,
+        }
+    }
+
+    #[cfg(not(unix))]
+    fn is_current(_file: &std::fs::File, path: &Path) -> bool {
+        path.exists()
+    }
+}
+
+impl Drop for OutputLock {
+    fn drop(&mut self) {
+        // Remove the file while still holding the lock (see `acquire`).
+        let _ = std::fs::remove_file(&self.path);
+        if self.created {
+            let _ = std::fs::remove_dir(&self.dir);
+        }
+    }
 }

@@ -115,7 +115,59 @@ impl Meta {
     }
 }
 
-/// Load the ingested clips of a run folder (`clips.parquet`, `frames.parquet`).
+/// The identity of one ingest run: a hash of the resolved settings and
+/// the source files' hashes that `ingest` records in both of its tables.
+/// Later stages record it in theirs (`skillaug.ingest_id`) so that a reader
+/// can tell tables of two different runs apart.
+///
+/// # Errors
+/// The table cannot be read, or lacks the two keys.
+pub fn ingest_id(table: &std::path::Path) -> anyhow::Result<String> {
+    let meta = io::read_metadata(table)?;
+    let get = |k: &str| {
+        meta.iter()
+            .find(|(key, _)| key == k)
+            .map(|(_, v)| v.as_str())
+            .ok_or_else(|| {
+                anyhow::anyhow!(
+                    "{}: no metadata key `{k}`: not written by `skillaug ingest`",
+                    table.display()
+                )
+            })
+    };
+    Ok(crate::config::hash_text(&format!(
+        "{}\n{}",
+        get("skillaug.config_hash")?,
+        get("skillaug.source_sha256")?
+    )))
+}
+
+/// Check that the table at `path` (metadata `skillaug.ingest_id`, when it
+/// has the key) was made from the clips of ingest run `id`.
+///
+/// # Errors
+/// Names the table, the two ids and what to re-run.
+pub fn check_ingest_id(path: &std::path::Path, id: &str, stage: &str) -> anyhow::Result<()> {
+    let meta = io::read_metadata(path)?;
+    if let Some((_, v)) = meta.iter().find(|(k, _)| k == "skillaug.ingest_id") {
+        if v != id {
+            anyhow::bail!(
+                "{} was made from another ingest run (ingest id {v}) than the clips beside it \
+                 ({id}): two runs wrote into one folder; run `skillaug {stage}` again",
+                path.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Load the ingested clips of a run folder (`clips.parquet`, `frames.parquet`),
+/// checked to come from one ingest run and to be usable
+/// ([`crate::motion::MotionLib::check`]).
+///
+/// # Errors
+/// A missing or unreadable table, tables of two runs, an unusable clip
+/// or a class fault, naming the file and the clip.
 pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::MotionLib> {
     use anyhow::Context;
     let cp = run.join("clips.parquet");
@@ -126,6 +178,18 @@ pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::Moti
             run.display()
         );
     }
+    let fp = run.join("frames.parquet");
+    if fp.is_file() {
+        let (a, b) = (ingest_id(&cp)?, ingest_id(&fp)?);
+        if a != b {
+            anyhow::bail!(
+                "{} and {} come from two different ingest runs (ingest ids {a} and {b}): two \
+                 runs wrote into one folder; ingest again",
+                cp.display(),
+                fp.display()
+            );
+        }
+    }
     let clips = clips::read(&cp)?;
     let frames = frames::read(&run.join("frames.parquet"), &clips)
         .with_context(|| format!("loading the clips of {}", run.display()))?;
@@ -133,11 +197,13 @@ pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::Moti
         .first()
         .and_then(|c| crate::motion::Skeleton::from_name(&c.skeleton))
         .ok_or_else(|| anyhow::anyhow!("{}: no clips, or an unknown skeleton", cp.display()))?;
-    Ok(crate::motion::MotionLib {
+    let lib = crate::motion::MotionLib {
         skeleton,
         clips,
         frames,
-    })
+    };
+    lib.check(&cp.display().to_string())?;
+    Ok(lib)
 }
 
 /// Names of the tables `skillaug schema` knows.
