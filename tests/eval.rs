@@ -225,8 +225,10 @@ fn report_renders_a_committed_summary_as_the_golden_table() {
     let got = std::fs::read_to_string(&md).unwrap();
     let want = std::fs::read_to_string(root.join("report_tiny.md")).unwrap();
     assert_eq!(got, want, "report differs from tests/data/report_tiny.md");
-    // our row first, then the six methods of Table 1
-    assert_eq!(got.lines().count(), 2 + 1 + 6);
+    // our row first, then the six methods of Table 1, then the notes: the
+    // committed summary predates the trial length
+    assert_eq!(got.lines().count(), 2 + 1 + 6 + 4);
+    assert!(got.contains("SM: trial length not recorded"), "{got}");
     assert!(got
         .lines()
         .next()

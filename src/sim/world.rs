@@ -411,12 +411,9 @@ fn geom_collider(g: &super::mjcf::Geom, body: &str) -> Result<ColliderBuilder> {
             if g.size.len() != 3 {
                 bail!("body `{body}`: a box needs three half-sizes");
             }
-            ColliderBuilder::cuboid(
-                g.size[0].abs() as f32,
-                g.size[1].abs() as f32,
-                g.size[2].abs() as f32,
-            )
-            .position(pose(g.pos))
+            // positive: the MJCF reader refuses other sizes
+            ColliderBuilder::cuboid(g.size[0] as f32, g.size[1] as f32, g.size[2] as f32)
+                .position(pose(g.pos))
         }
         other => bail!("body `{body}`: geom type `{other}` is not supported"),
     };

@@ -298,8 +298,11 @@ pub struct MethodRow {
     /// (from, to) -> TSR %.
     pub tsr: BTreeMap<(String, String), f64>,
     /// Rule skill -> the longest trial length of its success-rate cells,
-    /// policy steps (empty for summaries written before the column).
+    /// policy steps.
     pub trial_steps: BTreeMap<String, u32>,
+    /// Whether the summary recorded trial lengths (those written before
+    /// the `trial_steps` column did not).
+    pub trial_steps_recorded: bool,
 }
 
 /// The rows of one summary file (polars), one per label.
@@ -328,6 +331,7 @@ pub fn load(path: &Path) -> Result<Vec<MethodRow>> {
             None => {
                 rows.push(MethodRow {
                     label: label[i].clone(),
+                    trial_steps_recorded: !steps.is_empty(),
                     ..Default::default()
                 });
                 rows.last_mut().unwrap()
@@ -371,6 +375,7 @@ pub fn paper_row(p: &PaperRow) -> MethodRow {
             .map(|(a, b, v)| ((a.to_string(), b.to_string()), *v))
             .collect(),
         trial_steps: BTreeMap::new(),
+        trial_steps_recorded: false,
     }
 }
 
@@ -517,16 +522,25 @@ pub fn table(rows: &[MethodRow]) -> (Vec<String>, Vec<Vec<String>>) {
 pub fn trial_notes(rows: &[MethodRow]) -> Vec<String> {
     use crate::eval::rules::Rule;
     let mut notes = Vec::new();
-    for r in rows.iter().filter(|r| !r.trial_steps.is_empty()) {
+    for r in rows.iter().filter(|r| !r.label.starts_with("paper: ")) {
+        if !r.trial_steps_recorded {
+            notes.push(format!(
+                "{}: trial length not recorded (a summary written before the `trial_steps` column)",
+                r.label
+            ));
+            continue;
+        }
         let mut lengths: Vec<u32> = r.trial_steps.values().copied().collect();
         lengths.sort_unstable();
         lengths.dedup();
-        let l: Vec<String> = lengths.iter().map(u32::to_string).collect();
-        notes.push(format!(
-            "{}: trials of {} policy steps",
-            r.label,
-            l.join(" / ")
-        ));
+        if !lengths.is_empty() {
+            let l: Vec<String> = lengths.iter().map(u32::to_string).collect();
+            notes.push(format!(
+                "{}: trials of {} policy steps",
+                r.label,
+                l.join(" / ")
+            ));
+        }
         for (skill, &n) in &r.trial_steps {
             if let Some(rule) = Rule::of_skill(skill, 0.0) {
                 if (n as usize) < rule.min_steps() {
@@ -632,6 +646,8 @@ pub fn run(inputs: &[PathBuf], with_reference: bool, markdown_out: Option<&Path>
                 Some(x) => {
                     x.cells.extend(r.cells);
                     x.tsr.extend(r.tsr);
+                    x.trial_steps.extend(r.trial_steps);
+                    x.trial_steps_recorded &= r.trial_steps_recorded;
                 }
                 None => rows.push(r),
             }
