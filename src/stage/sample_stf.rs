@@ -78,12 +78,6 @@ impl crate::config::Validate for StfConfig {
         c.count("horizon", self.horizon as u64, 1, 1 << 20)?;
         c.range("p_e", self.p_e, 0.0, 1.0)?;
         c.range("p_n", self.p_n, 0.0, 1.0)?;
-        c.holds(self.p_e + self.p_n <= 1.0, || {
-            format!(
-                "p_e + p_n = {} + {}: the start probabilities must sum to at most 1",
-                self.p_e, self.p_n
-            )
-        })?;
         c.range("lambda_s", self.lambda_s, 0.0, 1e3)?;
         c.range("lambda_c", self.lambda_c, 0.0, 1e3)?;
         c.range("lambda_i", self.lambda_i, 0.0, 1e3)?;

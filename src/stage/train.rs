@@ -287,12 +287,6 @@ impl crate::config::Validate for TrainConfig {
         let c = crate::config::Check::new(stage);
         c.range("p_e", self.p_e, 0.0, 1.0)?;
         c.range("p_n", self.p_n, 0.0, 1.0)?;
-        c.holds(self.p_e + self.p_n <= 1.0, || {
-            format!(
-                "p_e + p_n = {} + {}: the start probabilities must sum to at most 1",
-                self.p_e, self.p_n
-            )
-        })?;
         c.count("num_envs", self.envs() as u64, 1, 1 << 20)?;
         c.count("horizon", self.steps() as u64, 1, 1 << 20)?;
         c.count("samples", self.samples, 1, u64::MAX)?;
