@@ -45,6 +45,8 @@ pub enum Command {
     Plot(PlotArgs),
     /// Write one HTML page that plays back clips, STF samples and recorded rollouts
     View(ViewArgs),
+    /// Export motion (BVH, glTF binary) or a trained policy (ONNX)
+    Export(ExportArgs),
     /// Run a benchmark and print its figures (ingest, sim, train)
     Bench(BenchArgs),
 }
@@ -216,13 +218,24 @@ pub struct ViewArgs {
     /// Folder holding the releases and assets (MJCF, object meshes).
     #[arg(long, value_name = "DIR", env = "SKILLAUG_DATA")]
     pub data_root: Option<PathBuf>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub motions: MotionArgs,
+    /// The page to write.
+    #[arg(long, value_name = "FILE", default_value = "view.html")]
+    pub out: PathBuf,
+}
+
+/// Which motions of a run folder `view` and `export` take.
+#[derive(Debug, Clone, Args)]
+pub struct MotionArgs {
     /// A reference clip by name or id (repeatable).
     #[arg(long, value_name = "NAME|ID")]
     pub clip: Vec<String>,
     /// Every clip of a skill (repeatable).
     #[arg(long, value_name = "SKILL")]
     pub skill: Vec<String>,
-    /// STF samples to show (stf_samples.parquet).
+    /// STF samples (stf_samples.parquet).
     #[arg(long, value_name = "FILE")]
     pub stf: Option<PathBuf>,
     /// Trajectory ids of --stf (repeatable; default the first --max).
@@ -237,9 +250,61 @@ pub struct ViewArgs {
     /// Items of each kind chosen by default.
     #[arg(long, default_value_t = 8)]
     pub max: usize,
-    /// The page to write.
-    #[arg(long, value_name = "FILE", default_value = "view.html")]
-    pub out: PathBuf,
+}
+
+impl MotionArgs {
+    /// The selection of run folder `from`; `all_clips_by_default`: every
+    /// clip when nothing is named.
+    pub fn selection(
+        &self,
+        from: &std::path::Path,
+        all_clips_by_default: bool,
+    ) -> crate::export::motions::Selection {
+        crate::export::motions::Selection {
+            from: from.to_path_buf(),
+            clips: self.clip.clone(),
+            skills: self.skill.clone(),
+            stf: self.stf.clone(),
+            trajs: self.traj.clone(),
+            rollouts: self.rollouts.clone(),
+            trials: self.trial.clone(),
+            max_items: self.max,
+            all_clips_by_default,
+        }
+    }
+}
+
+/// `skillaug export`: motion (`--from RUN` and what to take, into `--bvh
+/// DIR` and/or `--gltf FILE`) or a policy (`--policy TRAIN_DIR --onnx FILE`).
+#[derive(Debug, Args)]
+pub struct ExportArgs {
+    /// Run folder with clips.parquet and frames.parquet (motion export).
+    #[arg(long, value_name = "DIR")]
+    pub from: Option<PathBuf>,
+    /// Folder holding the releases and assets (MJCF, object meshes).
+    #[arg(long, value_name = "DIR", env = "SKILLAUG_DATA")]
+    pub data_root: Option<PathBuf>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub motions: MotionArgs,
+    /// Write one BVH file per clip, trajectory or trial (and character) into this folder.
+    #[arg(long, value_name = "DIR")]
+    pub bvh: Option<PathBuf>,
+    /// Length unit of the BVH offsets and root positions.
+    #[arg(long, value_name = "m|cm", default_value = "cm")]
+    pub units: String,
+    /// Write one glTF binary file (.glb) with one animation per clip, trajectory or trial.
+    #[arg(long, value_name = "FILE")]
+    pub gltf: Option<PathBuf>,
+    /// Output folder of `skillaug train` (policy export).
+    #[arg(long, value_name = "DIR")]
+    pub policy: Option<PathBuf>,
+    /// Write the policy as an ONNX model.
+    #[arg(long, value_name = "FILE")]
+    pub onnx: Option<PathBuf>,
+    /// No summary.
+    #[arg(long, short)]
+    pub quiet: bool,
 }
 
 /// `skillaug train`.

@@ -12,6 +12,7 @@ pub mod cli;
 pub mod config;
 pub mod dataset;
 pub mod eval;
+pub mod export;
 pub mod motion;
 pub mod nn;
 pub mod plot;
@@ -77,15 +78,8 @@ pub fn run(cli: Cli) -> Result<()> {
         }),
         Command::View(a) => {
             let n = stage::view::run(&stage::view::ViewRequest {
-                from: a.from,
+                select: a.motions.selection(&a.from, true),
                 data_root: a.data_root,
-                clips: a.clip,
-                skills: a.skill,
-                stf: a.stf,
-                trajs: a.traj,
-                rollouts: a.rollouts,
-                trials: a.trial,
-                max_items: a.max,
                 out: a.out.clone(),
             })?;
             println!("wrote {} ({n} items)", a.out.display());
@@ -96,6 +90,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Seams(a) => stage::seams::run(&stage::Common::new(a)?),
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => stage::schema::run(&a.name),
+        Command::Export(a) => stage::export::run(&a),
         Command::Bench(a) => stage::bench::run(&a.name, a.repeat, a.data_root, &a.set),
     }
 }

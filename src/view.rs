@@ -248,8 +248,15 @@ pub fn bodies(model: &Model) -> Result<Vec<BodyView>> {
         .collect()
 }
 
-/// Append the triangles of `shape` placed at `pose` to `verts` / `tris`.
-fn shape_mesh(shape: &SharedShape, pose: Pose, verts: &mut Vec<f32>, tris: &mut Vec<u32>) {
+/// Append the triangles of `shape` placed at `pose` to `verts` / `tris`
+/// (`[V*3]` positions in the frame of `pose`, m; `[T*3]` vertex indices,
+/// counter-clockwise seen from outside). Shared with the glTF export.
+pub(crate) fn shape_mesh(
+    shape: &SharedShape,
+    pose: Pose,
+    verts: &mut Vec<f32>,
+    tris: &mut Vec<u32>,
+) {
     let (v, t): (Vec<Vector>, Vec<[u32; 3]>) = if let Some(c) = shape.as_compound() {
         for (p, s) in c.shapes() {
             shape_mesh(s, pose * *p, verts, tris);
@@ -259,6 +266,8 @@ fn shape_mesh(shape: &SharedShape, pose: Pose, verts: &mut Vec<f32>, tris: &mut 
         b.to_trimesh(24, 12)
     } else if let Some(b) = shape.as_cuboid() {
         b.to_trimesh()
+    } else if let Some(c) = shape.as_capsule() {
+        c.to_trimesh(16, 8)
     } else if let Some(c) = shape.as_cylinder() {
         c.to_trimesh(24)
     } else if let Some(c) = shape.as_convex_polyhedron() {

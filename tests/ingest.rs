@@ -419,7 +419,7 @@ row = frames.slice(0, 1).to_pylist()[0]
 assert len(row["joint_rot"]) == 156 and len(row["body_pos"]) == 159
 print("pyarrow", clips.num_rows, frames.num_rows)
 "##;
-    let python = python_with_pyarrow();
+    let python = python_with(&["pyarrow"]);
     let o = std::process::Command::new(&python)
         .arg("-c")
         .arg(script)
@@ -434,42 +434,6 @@ print("pyarrow", clips.num_rows, frames.num_rows)
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(String::from_utf8_lossy(&o.stdout).contains("pyarrow 6 "));
-}
-
-/// A Python with pyarrow: the system one if it has it (`.ci/run` installs
-/// it), else a virtual environment under target/ made on first use.
-fn python_with_pyarrow() -> std::path::PathBuf {
-    let has = |py: &Path| {
-        std::process::Command::new(py)
-            .args(["-c", "import pyarrow"])
-            .output()
-            .map(|o| o.status.success())
-            .unwrap_or(false)
-    };
-    let system = Path::new("python3");
-    if has(system) {
-        return system.into();
-    }
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-venv");
-    let py = venv.join("bin/python");
-    if !has(&py) {
-        let made = std::process::Command::new("python3")
-            .args(["-m", "venv"])
-            .arg(&venv)
-            .status()
-            .map(|s| s.success())
-            .unwrap_or(false)
-            && std::process::Command::new(&py)
-                .args(["-m", "pip", "install", "--quiet", "pyarrow"])
-                .status()
-                .map(|s| s.success())
-                .unwrap_or(false);
-        assert!(
-            made,
-            "this test needs Python 3 with pyarrow: `pip install pyarrow` (bash .ci/run does)"
-        );
-    }
-    py
 }
 
 #[test]

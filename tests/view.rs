@@ -152,22 +152,7 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
     let lib = skillaug::table::load_library(&run).unwrap();
 
     // STF samples with masked states (wide neighbourhood, no graph)
-    ok(&[
-        "sample-stf",
-        "--out",
-        from,
-        "-q",
-        "--seed",
-        "3",
-        "--set",
-        "sample-stf.p_e=0",
-        "--set",
-        "sample-stf.p_n=1.0",
-        "--set",
-        "sample-stf.eps.dof=0.5",
-        "--set",
-        "sample-stf.trajectories=20",
-    ]);
+    sample_masked_stf(from);
     let stf = run.join("stf_samples.parquet");
     let trajs = skillaug::table::stf::read_trajectories(&stf).unwrap();
     let masked_traj = trajs

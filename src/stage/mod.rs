@@ -6,6 +6,7 @@ pub mod build_stg;
 pub mod check_contact;
 pub mod check_fk;
 pub mod eval;
+pub mod export;
 pub mod ingest;
 pub mod inspect;
 pub mod plot;

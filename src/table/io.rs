@@ -97,6 +97,15 @@ impl Staged {
         Ok(())
     }
 
+    /// Stage a file holding `bytes`.
+    pub fn bytes(&mut self, dest: &Path, bytes: &[u8]) -> Result<()> {
+        let mut tmp = Self::temp_for(dest)?;
+        tmp.write_all(bytes)?;
+        tmp.flush()?;
+        self.files.push((tmp, dest.to_path_buf()));
+        Ok(())
+    }
+
     /// Stage a text file.
     pub fn text(&mut self, dest: &Path, text: &str) -> Result<()> {
         let mut tmp = Self::temp_for(dest)?;

@@ -232,3 +232,64 @@ pub fn read_clip(path: &Path) -> (usize, usize, Vec<f32>) {
     let m = skillaug::pt::read_f32_matrix(&std::fs::read(path).unwrap()).unwrap();
     (m.rows, m.cols, m.data)
 }
+
+/// A Python 3 that imports `packages` (PyPI names that are also module
+/// names): the system one if it has them (`.ci/run` installs them), else a
+/// virtual environment under target/ made on first use.
+pub fn python_with(packages: &[&str]) -> PathBuf {
+    let import = format!("import {}", packages.join(", "));
+    let has = |py: &Path| {
+        Command::new(py)
+            .args(["-c", &import])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    let system = Path::new("python3");
+    if has(system) {
+        return system.into();
+    }
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-venv");
+    let py = venv.join("bin/python");
+    if !has(&py) {
+        let made = (py.exists()
+            || Command::new("python3")
+                .args(["-m", "venv"])
+                .arg(&venv)
+                .status()
+                .is_ok_and(|s| s.success()))
+            && Command::new(&py)
+                .args(["-m", "pip", "install", "--quiet"])
+                .args(packages)
+                .status()
+                .is_ok_and(|s| s.success());
+        assert!(
+            made,
+            "this test needs Python 3 with {}: `pip install {}` (bash .ci/run does)",
+            packages.join(", "),
+            packages.join(" ")
+        );
+    }
+    py
+}
+
+/// `skillaug sample-stf` of 20 trajectories into run folder `from` with
+/// neighbourhood starts only and wide joint radii (seed 3), so that some
+/// trajectories have masked states and missing reference frames.
+pub fn sample_masked_stf(from: &str) {
+    ok(&[
+        "sample-stf",
+        "--out",
+        from,
+        "-q",
+        "--seed",
+        "3",
+        "--set",
+        "sample-stf.p_e=0",
+        "--set",
+        "sample-stf.p_n=1.0",
+        "--set",
+        "sample-stf.eps.dof=0.5",
+        "--set",
+        "sample-stf.trajectories=20",
+    ]);
+}

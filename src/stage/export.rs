@@ -1,0 +1,135 @@
+//! `skillaug export`: motions of a run folder as BVH files and one glTF
+//! binary file ([`crate::export`]), or a trained policy as an ONNX model.
+//! Every file is staged and moved into place only when all were written.
+
+use crate::cli::ExportArgs;
+use crate::export::bvh::{self, Units};
+use crate::export::motions::gather;
+use crate::export::{gltf, onnx};
+use crate::sim::mjcf::Model;
+use crate::table::io::Staged;
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Run the command.
+pub fn run(a: &ExportArgs) -> Result<()> {
+    let mut created = Vec::new();
+    let r = export(a, &mut created);
+    if r.is_err() {
+        // the staged files removed themselves; folders made for them go too
+        for dir in created.iter().rev() {
+            let _ = std::fs::remove_dir(dir);
+        }
+    }
+    r
+}
+
+/// Create folder `dir` (and its missing parents), noting each one made.
+fn make_dir(dir: &Path, created: &mut Vec<PathBuf>) -> Result<()> {
+    let mut missing = Vec::new();
+    let mut d = Some(dir);
+    while let Some(p) = d.filter(|p| !p.as_os_str().is_empty() && !p.exists()) {
+        missing.push(p.to_path_buf());
+        d = p.parent();
+    }
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create the output folder {}", dir.display()))?;
+    created.extend(missing.into_iter().rev());
+    Ok(())
+}
+
+/// [`make_dir`] of the folder of file `path`.
+fn make_parent(path: &Path, created: &mut Vec<PathBuf>) -> Result<()> {
+    match path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        Some(dir) => make_dir(dir, created),
+        None => Ok(()),
+    }
+}
+
+fn export(a: &ExportArgs, created: &mut Vec<PathBuf>) -> Result<()> {
+    let started = Instant::now();
+    let motion = a.bvh.is_some() || a.gltf.is_some();
+    match (motion, a.onnx.is_some()) {
+        (false, false) => bail!(
+            "export: give --bvh DIR and/or --gltf FILE (motion of --from RUN), or --policy DIR --onnx FILE"
+        ),
+        (true, true) => bail!("export: motion (--bvh, --gltf) and a policy (--onnx) are two commands"),
+        _ => {}
+    }
+    let mut staged = Staged::new();
+    let mut written: Vec<(PathBuf, usize)> = Vec::new();
+    if let Some(out) = &a.onnx {
+        let Some(policy) = &a.policy else {
+            bail!("export --onnx needs --policy TRAIN_DIR (the output folder of `skillaug train`)");
+        };
+        let bytes = onnx::policy_to_onnx(policy)?;
+        make_parent(out, created)?;
+        staged.bytes(out, &bytes)?;
+        written.push((out.clone(), bytes.len()));
+    } else {
+        let Some(from) = &a.from else {
+            bail!("export --bvh/--gltf needs --from RUN (a run folder with clips.parquet)");
+        };
+        let units = match a.units.as_str() {
+            "m" => Units::Metres,
+            "cm" => Units::Centimetres,
+            other => bail!("--units {other}: expected m or cm"),
+        };
+        let lib = crate::table::load_library(from)?;
+        let root = crate::dataset::data_root(a.data_root.as_deref())?;
+        let model = Model::for_skeleton(&root, lib.skeleton)?;
+        let sel = a.motions.selection(from, false);
+        let motions = gather(&lib, &sel)?;
+        if motions.is_empty() {
+            bail!("export: nothing to export: give --clip, --skill, --stf or --rollouts");
+        }
+        if let Some(dir) = &a.bvh {
+            make_dir(dir, created)?;
+            for m in &motions {
+                for t in &m.tracks {
+                    let name = if m.tracks.len() > 1 {
+                        format!("{}-{}.bvh", m.stem, t.name.replace(' ', "_"))
+                    } else {
+                        format!("{}.bvh", m.stem)
+                    };
+                    let text = bvh::to_bvh(&model, t, m.fps, units)
+                        .with_context(|| format!("{} ({})", m.title, t.name))?;
+                    let path = dir.join(name);
+                    staged.text(&path, &text)?;
+                    written.push((path, text.len()));
+                }
+            }
+        }
+        if let Some(path) = &a.gltf {
+            let mut names: Vec<String> = Vec::new();
+            for m in &motions {
+                for o in &m.objects {
+                    if !names.contains(o) {
+                        names.push(o.clone());
+                    }
+                }
+            }
+            let objects = names
+                .iter()
+                .map(|n| crate::sim::ObjectSpec::load(n, &root))
+                .collect::<Result<Vec<_>>>()?;
+            let bytes = gltf::to_glb(&model, &objects, &motions)?;
+            make_parent(path, created)?;
+            staged.bytes(path, &bytes)?;
+            written.push((path.clone(), bytes.len()));
+        }
+    }
+    staged.commit()?;
+    if !a.quiet {
+        for (p, n) in &written {
+            println!("wrote {} ({n} bytes)", p.display());
+        }
+        println!(
+            "exported {} file(s) in {:.2} s",
+            written.len(),
+            started.elapsed().as_secs_f64()
+        );
+    }
+    Ok(())
+}
