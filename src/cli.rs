@@ -239,13 +239,13 @@ pub struct MotionArgs {
     #[arg(long, value_name = "FILE")]
     pub stf: Option<PathBuf>,
     /// Trajectory ids of --stf (repeatable; default the first --max).
-    #[arg(long, value_name = "K")]
+    #[arg(long, value_name = "K", requires = "stf")]
     pub traj: Vec<u32>,
     /// Rollouts recorded by `skillaug eval --record N` (the eval folder or its eval_rollouts.parquet).
     #[arg(long, value_name = "FILE|DIR")]
     pub rollouts: Option<PathBuf>,
     /// Trials of --rollouts (repeatable; default the first --max of each cell).
-    #[arg(long, value_name = "K")]
+    #[arg(long, value_name = "K", requires = "rollouts")]
     pub trial: Vec<u32>,
     /// Items of each kind chosen by default.
     #[arg(long, default_value_t = 8)]
@@ -291,16 +291,16 @@ pub struct ExportArgs {
     #[arg(long, value_name = "DIR")]
     pub bvh: Option<PathBuf>,
     /// Length unit of the BVH offsets and root positions.
-    #[arg(long, value_name = "m|cm", default_value = "cm")]
+    #[arg(long, value_name = "m|cm", default_value = "cm", requires = "bvh")]
     pub units: String,
     /// Write one glTF binary file (.glb) with one animation per clip, trajectory or trial.
     #[arg(long, value_name = "FILE")]
     pub gltf: Option<PathBuf>,
     /// Output folder of `skillaug train` (policy export).
-    #[arg(long, value_name = "DIR")]
+    #[arg(long, value_name = "DIR", requires = "onnx")]
     pub policy: Option<PathBuf>,
-    /// Write the policy as an ONNX model.
-    #[arg(long, value_name = "FILE")]
+    /// Write the policy as an ONNX model (with --policy; not with motion flags).
+    #[arg(long, value_name = "FILE", requires = "policy", conflicts_with_all = ["from", "bvh", "gltf", "clip", "skill", "stf", "rollouts"])]
     pub onnx: Option<PathBuf>,
     /// No summary.
     #[arg(long, short)]

@@ -8,7 +8,8 @@
 //!
 //! A plain folder of `.pt` files can be used instead (`--from DIR`): each
 //! clip's skill is its parent folder's name and its class the integer formed by
-//! the first three characters of its file name (reference §1.7).
+//! the first three characters of its file name (as Ingrid789/SkillMimic-V2
+//! `skillmimic/utils/motion_data_handler.py` derives it).
 
 use crate::motion::Skeleton;
 use anyhow::{anyhow, bail, Context, Result};

@@ -1,4 +1,6 @@
-//! Reader for PyTorch `.pt` files that hold a single tensor (reference §1.1).
+//! Reader for PyTorch `.pt` files that hold a single tensor: the motion clips
+//! of Ingrid789/SkillMimic-V2 (`skillmimic/data/motions/`, loaded there with
+//! `torch.load` in `skillmimic/utils/motion_data_handler.py`).
 //!
 //! # Container format
 //!

@@ -765,6 +765,20 @@ fn settings_out_of_range_are_refused_naming_the_key() {
             ],
             "eval.record = 500",
         ),
+        (
+            vec![
+                "eval",
+                "--from",
+                r,
+                "--out",
+                o,
+                "--policy",
+                r,
+                "--set",
+                "eval.metrics=[]",
+            ],
+            "eval.metrics = []",
+        ),
     ] {
         let err = fails(&args);
         assert!(err.contains(key), "{args:?}: `{key}` missing in:\n{err}");
@@ -821,7 +835,7 @@ fn a_second_writer_is_refused_and_tables_of_two_runs_are_not_mixed() {
     .unwrap();
     let err = fails(&["sample-stf", "--out", s(&mixed)]);
     assert!(
-        err.contains("stg_edges.parquet was made from another ingest run"),
+        err.contains("stg_edges.parquet was made from the clips of another ingest run"),
         "{err}"
     );
 }
@@ -890,4 +904,33 @@ fn every_output_gets_the_mode_the_umask_implies() {
             assert_eq!(mode, want, "{f}: mode {mode:o} under umask {umask}");
         }
     }
+}
+
+#[test]
+fn a_history_encoder_of_other_clips_in_the_input_folder_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let r = s(&run);
+    ok(&["ingest", "--dataset", "ballplay", "--out", r, "-q"]);
+    tiny_encoder(r, 2);
+    // the folder ingested again with fewer clips: the encoder is stale
+    ok(&[
+        "ingest",
+        "--dataset",
+        "ballplay",
+        "--out",
+        r,
+        "-q",
+        "--set",
+        "ingest.skills=[\"run\", \"lrun\"]",
+    ]);
+    let pol = dir.path().join("pol");
+    let mut a = vec!["train", "--from", r, "--out", s(&pol), "--he"];
+    a.extend_from_slice(TINY_TRAIN);
+    let err = fails(&a);
+    assert!(
+        err.contains("he.config.json: the history encoder was pre-trained on other clips"),
+        "{err}"
+    );
+    assert!(!pol.exists());
 }

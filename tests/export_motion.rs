@@ -854,8 +854,6 @@ fn bad_selections_fail_clearly_and_write_nothing() {
     assert!(err.contains("no clip `no_such_clip`"), "{err}");
     let err = refused(&["--clip", "99"]);
     assert!(err.contains("no clip `99`"), "{err}");
-    let err = refused(&[]);
-    assert!(err.contains("nothing to export"), "{err}");
     let err = refused(&["--clip", "0", "--units", "mm"]);
     assert!(err.contains("--units mm"), "{err}");
 
@@ -920,4 +918,107 @@ fn a_failure_after_the_bvh_files_leaves_no_bvh_folder() {
         vec!["data", "run"],
         "the --bvh folders were left behind"
     );
+}
+
+/// A glTF path that is a folder is found before anything is moved into
+/// place: the BVH files staged beside it are not written either.
+#[test]
+fn a_folder_in_the_way_moves_nothing_into_place() {
+    let (dir, run) = ingested("ballplay");
+    let bvh = dir.path().join("bvh");
+    let glb = dir.path().join("in_the_way.glb");
+    std::fs::create_dir_all(&glb).unwrap();
+    let err = fails(&[
+        "export",
+        "--from",
+        run.to_str().unwrap(),
+        "--clip",
+        "0",
+        "--bvh",
+        bvh.to_str().unwrap(),
+        "--gltf",
+        glb.to_str().unwrap(),
+    ]);
+    assert!(err.contains("a folder of that name is in the way"), "{err}");
+    assert!(!bvh.exists(), "BVH files were moved into place");
+    // with no selection, every clip (as `view` shows them)
+    let text = export(&run, &["--bvh", bvh.to_str().unwrap()]);
+    assert!(text.contains("exported 6 file(s)"), "{text}");
+}
+
+/// Recorded rollouts: a rollout and its reference as two named characters,
+/// and only with the clips they were evaluated on.
+#[test]
+fn rollouts_export_beside_their_reference_and_only_with_their_clips() {
+    let (dir, run) = ingested("ballplay");
+    let r = run.to_str().unwrap();
+    let pol = dir.path().join("pol");
+    let mut a = vec!["train", "--from", r, "--out", pol.to_str().unwrap(), "-q"];
+    a.extend_from_slice(TINY_TRAIN);
+    a.extend_from_slice(&[
+        "--set",
+        "train.samples=32",
+        "--set",
+        "train.skills=[\"run\"]",
+    ]);
+    ok(&a);
+    let ev = dir.path().join("ev");
+    eval_quiet(
+        r,
+        &pol,
+        &ev,
+        &[
+            "--record",
+            "1",
+            "--set",
+            "eval.trials=1",
+            "--set",
+            "eval.envs=1",
+            "--set",
+            "eval.steps=20",
+            "--set",
+            "eval.metrics=[\"sr\"]",
+        ],
+    );
+    let glb = dir.path().join("r.glb");
+    export(
+        &run,
+        &[
+            "--rollouts",
+            ev.to_str().unwrap(),
+            "--gltf",
+            glb.to_str().unwrap(),
+            "-q",
+        ],
+    );
+    let (doc, _) = check_glb(&std::fs::read(&glb).unwrap());
+    let names: Vec<&str> = doc["scenes"][0]["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| {
+            doc["nodes"][n.as_u64().unwrap() as usize]["name"]
+                .as_str()
+                .unwrap()
+        })
+        .collect();
+    assert_eq!(names, ["character 0: rollout", "character 1: reference"]);
+    khronos_validator(&glb);
+    // the same rollouts with another dataset's clips are refused
+    let (_other, loco) = ingested("locomotion");
+    let out = dir.path().join("wrong");
+    let err = fails(&[
+        "export",
+        "--from",
+        loco.to_str().unwrap(),
+        "--rollouts",
+        ev.to_str().unwrap(),
+        "--bvh",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains("eval_rollouts.parquet was made from the clips of another ingest run"),
+        "{err}"
+    );
+    assert!(!out.exists());
 }

@@ -255,7 +255,9 @@ fn a_history_encoder_policy_takes_the_embedding_as_input() {
     let model = dir.path().join("he.onnx");
     let r = export_and_compare(&run, &pol, &model);
     let md = &r["metadata"];
-    assert_eq!(md["obs_dim"], "905"); // 902 + the 3-D embedding (reference §9.3)
+    // 902 + the 3-D embedding (Ingrid789/SkillMimic-V2
+    // `skillmimic/env/tasks/skillmimic1_hist.py`)
+    assert_eq!(md["obs_dim"], "905");
     let he = md["history_encoder"].as_str().unwrap();
     assert!(
         he.contains("last 3 entries") && he.contains("he.safetensors"),
@@ -323,7 +325,7 @@ fn a_folder_without_its_files_is_refused_and_nothing_is_written() {
     assert_eq!(entries(&out_dir), ["p.onnx"]);
 }
 
-/// The figures of the issue: file size, export time and max |diff| for the
+/// The figures of docs/export.md: file size, export time and max |diff| for the
 /// CPU preset's hidden sizes [256, 256] and the paper's [1024, 512, 512]
 /// (tiny training budgets, warm start shortened). Slow: `cargo test
 /// --release --test export_onnx -- --ignored --nocapture`.

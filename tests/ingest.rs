@@ -1,6 +1,7 @@
 //! `skillaug ingest` on the real clips: values straight from the tensor are
-//! stored bit for bit, derived velocities follow reference §1.8, outputs are
-//! deterministic, and an independent reader (pyarrow) reads them.
+//! stored bit for bit, derived velocities follow the reference loader
+//! (Ingrid789/SkillMimic-V2 `skillmimic/utils/motion_data_handler.py`), outputs
+//! are deterministic, and an independent reader (pyarrow) reads them.
 
 mod common;
 

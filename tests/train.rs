@@ -1,6 +1,6 @@
 //! `skillaug train` and its environment on the real clips (issue: PPO on the
 //! rapier humanoid). Budgets are tiny: these check behaviour, not learning
-//! (the learning figures are in the issue notes and `stages/`).
+//! (the learning figures are in docs/training.md and `stages/`).
 
 mod common;
 

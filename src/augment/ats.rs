@@ -1,30 +1,33 @@
-//! Adaptive Trajectory Sampling (paper Section 4.5, Eq. 8; reference §5.2,
-//! §8): where an episode starts.
+//! Adaptive Trajectory Sampling (paper Section 4.5, Eq. 8; reference code:
+//! Ingrid789/SkillMimic-V2 `skillmimic/utils/motion_data_handler.py` and
+//! `skillmimic/env/tasks/skillmimic1_reweight.py`): where an episode starts.
 //!
 //! * **Start frames.** A clip's allowed start frames are its valid frames in
-//!   `[2, F - 2]` (reference §5.2: the first two and the last frame are never
-//!   start frames); a clip with no valid frame there may start at any valid
-//!   frame. Missing frames always get weight zero. The same set is what the
-//!   STF connection (Eq. 6) searches ([`start_frames`]).
+//!   `[2, F - 2]` (as in `motion_data_handler.py`: the first two and the last
+//!   frame are never start frames); a clip with no valid frame there may start
+//!   at any valid frame. Missing frames always get weight zero. The same set is
+//!   what the STF connection (Eq. 6) searches ([`start_frames`]).
 //! * **Frame weights** (Eq. 8): p_i ∝ exp(-lambda_s r̄_i) over the allowed
 //!   start frames of a clip, where r̄_i is the mean reward of rollouts started
 //!   at frame i. lambda_s = 0 gives exactly uniform weights over the allowed
 //!   frames. The paper averages r̄_i over the rest of the clip; the trainer
-//!   (like the reference code, §8.2) records the mean reward of its
-//!   horizon-long episodes started at i ([`Ats::record`]).
+//!   (like the reference code, `skillmimic1_reweight.py`) records the mean
+//!   reward of its horizon-long episodes started at i ([`Ats::record`]).
 //! * **Never-visited frames.** The paper is silent; the reference code keeps
-//!   M = 0 for them (§8.2), i.e. the *highest* weight, so unexplored start
-//!   frames are tried first. skillaug does the same: an unvisited frame counts
-//!   as reward 0.
+//!   M = 0 for them (`skillmimic1_reweight.py`), i.e. the *highest* weight, so
+//!   unexplored start frames are tried first. skillaug does the same: an
+//!   unvisited frame counts as reward 0.
 //! * **Class weights** (lambda_c): P_c ∝ exp(-lambda_c C_c), C_c = mean over
 //!   the class's clips of R_i, R_i = mean of r̄ over the clip's allowed frames
-//!   (reference §8.4 uses a one-step snapshot of the current rewards instead).
-//!   With no rewards every class gets the same weight.
+//!   (the reference code, `_reweight_clip_sampling_rate_vectorized` in
+//!   `motion_data_handler.py`, uses a one-step snapshot of the current rewards
+//!   instead). With no rewards every class gets the same weight.
 //! * **Clip weights within a class**: P_{i|c} ∝ exp(-lambda_i R_i). The paper
 //!   does not mention an intra-class term: `lambda_i = 0` (default) is uniform
 //!   within the class; the reference code uses `lambda_i = 5`.
 //! * **Updates**: [`Update::Mean`] keeps a running mean per (clip, frame);
-//!   [`Update::Halving`] is the reference code's M <- (M + r) / 2 (§8.2).
+//!   [`Update::Halving`] is the reference code's M <- (M + r) / 2
+//!   (`skillmimic1_reweight.py`).
 //!
 //! Pure code: the weights are computed once ([`Ats::weights`]) and sampled
 //! many times ([`AtsWeights`]); the trainer re-computes them after updates.

@@ -17,7 +17,9 @@ pub enum MaskRule {
     /// Paper Eq. 20 as printed: N = min(-ceil(log10 beta), N_max).
     #[default]
     Paper,
-    /// Reference code (§7.4): N = 0 if beta > 0.5, else min(-floor(log10 beta), N_max).
+    /// Reference code (Ingrid789/SkillMimic-V2
+    /// `skillmimic/env/tasks/skillmimic1_rand.py`): N = 0 if beta > 0.5, else
+    /// min(-floor(log10 beta), N_max).
     Reference,
 }
 

@@ -1,6 +1,8 @@
 //! State Transition Field sampling (paper Sections 4.3 and 4.5, Eqs. 6-7,
-//! Algorithm 1, Appendix B.4, Table 7; reference §7): the start state of an
-//! episode and the reference it follows.
+//! Algorithm 1, Appendix B.4, Table 7; reference code: Ingrid789/SkillMimic-V2
+//! `skillmimic/env/tasks/skillmimic1_rand.py` and
+//! `skillmimic/utils/motion_data_handler.py`): the start state of an episode
+//! and the reference it follows.
 //!
 //! One trajectory for target skill A ([`StfSampler::sample`]):
 //! 1. ATS picks a clip of A (class weights, then clip weights; [`super::ats`]).
@@ -13,11 +15,13 @@
 //!    from its ε-neighbourhood ([`perturb`]; per-group ε of Table 7 taken
 //!    from the target class A, with per-class overrides: Getup, class 0, has
 //!    ε_rootpos = ε_rootvel = 1.0 as in Table 7; the reference code enlarges
-//!    the root height and rotation instead, §7.2).
+//!    the root height and rotation instead, `_init_with_random_noise` in
+//!    `skillmimic1_rand.py`).
 //! 4. **Connection** (Eq. 6): j = argmax S_k(ŝ, start) over the candidate
-//!    frames ŝ of A (valid frames in [2, F - 2] of every clip of A, reference
-//!    §7.2; [`Search::Clip`] restricts the search to the centroid's clip as
-//!    the reference code does). No alignment: the start already lives in the
+//!    frames ŝ of A (valid frames in [2, F - 2] of every clip of A, as
+//!    `noisyinit_find_most_similarity_state` in `motion_data_handler.py`;
+//!    [`Search::Clip`] restricts the search to the centroid's clip as the
+//!    reference code does). No alignment: the start already lives in the
 //!    target's coordinates (an RSI start is a frame of A, an STG start was
 //!    moved onto its target frame). When the start has not been perturbed
 //!    the centroid frame (RSI) or the edge's target frame (STG) is compared
@@ -38,16 +42,16 @@
 //! unperturbed RSI start at frame k reads {ŝ_k, ŝ_k, ŝ_{k+1}, ...}: Eq. 7
 //! taken literally asks the first step to reach ŝ_j even when the start is
 //! already there. [`Connect::Reference`] is the reference code's indexing
-//! (§7.4, ts = max(progress - N, 0)): the start takes the place of ŝ_j, so
-//! N = 0 continues with ŝ_{j+1} and N >= 1 inserts N - 1 masked states
-//! before ŝ_j. (Together with the reference's floor rule for N this matches
-//! the paper's step count except for β > 0.5, where the code takes no
-//! transition step at all.)
+//! (`skillmimic1_rand.py`: ts = max(progress - N, 0)): the start takes the
+//! place of ŝ_j, so N = 0 continues with ŝ_{j+1} and N >= 1 inserts N - 1
+//! masked states before ŝ_j. (Together with the reference's floor rule for N
+//! this matches the paper's step count except for β > 0.5, where the code takes
+//! no transition step at all.)
 //!
-//! **Order** ([`Order::Reference`], reference §7.1): the code draws an RSI
-//! frame first, then noise with p_n, and only for un-noised starts the STG
-//! switch with p_e, so noise and switch never combine. Its switch picks an
-//! edge whose target frame is the RSI frame when the graph has one (the
+//! **Order** ([`Order::Reference`], `skillmimic1_rand.py`): the code draws an
+//! RSI frame first, then noise with p_n, and only for un-noised starts the STG
+//! switch with p_e, so noise and switch never combine. Its switch picks an edge
+//! whose target frame is the RSI frame when the graph has one (the
 //! `--per-target` graph always does), else any edge of A.
 //!
 //! **Perturbation** ([`perturb`]): every component uniform in [-ε, ε]
@@ -156,7 +160,9 @@ pub enum Order {
     /// Algorithm 1: external start with p_e, then noise with p_n on top.
     #[default]
     Paper,
-    /// Reference §7.1: noise with p_n, else switch with p_e (never both).
+    /// The reference code's order (Ingrid789/SkillMimic-V2
+    /// `skillmimic/env/tasks/skillmimic1_rand.py`): noise with p_n, else
+    /// switch with p_e (never both).
     Reference,
 }
 
@@ -167,7 +173,9 @@ pub enum Connect {
     /// Eq. 7: start, N masked, ŝ_j, ŝ_{j+1}, ...
     #[default]
     Paper,
-    /// Reference §7.4: the start stands for ŝ_j: N - 1 masked then ŝ_j (N >= 1), or ŝ_{j+1}, ... (N = 0).
+    /// The reference code's indexing (Ingrid789/SkillMimic-V2
+    /// `skillmimic/env/tasks/skillmimic1_rand.py`): the start stands for ŝ_j:
+    /// N - 1 masked then ŝ_j (N >= 1), or ŝ_{j+1}, ... (N = 0).
     Reference,
 }
 
@@ -178,7 +186,10 @@ pub enum Search {
     /// Every clip of skill A (paper: all states of A).
     #[default]
     Skill,
-    /// Only the centroid's clip (the edge's target clip for STG starts; reference §7.2).
+    /// Only the centroid's clip (the edge's target clip for STG starts), as
+    /// the reference code searches (Ingrid789/SkillMimic-V2
+    /// `skillmimic/utils/motion_data_handler.py`,
+    /// `noisyinit_find_most_similarity_state`).
     Clip,
 }
 

@@ -1,5 +1,7 @@
 //! The Stitched Trajectory Graph (paper Section 4.4, Appendix B.4, Eq. 20;
-//! reference §6.1).
+//! reference code: Ingrid789/SkillMimic-V2
+//! `skillmimic/env/tasks/offline_state_search.py` and
+//! `skillmimic/utils/motion_data_handler.py`).
 //!
 //! Paper direction (default): for each target skill A and every valid state s
 //! of the other skills' clips, align s onto each candidate frame of A (root
@@ -199,7 +201,10 @@ fn sim(t: &Canon, s: &Canon, w: &Weights) -> f64 {
 }
 
 /// Candidate target frames of a clip: valid frames, without the first two and
-/// the last (all valid frames if that leaves none; reference §6.1).
+/// the last (all valid frames if that leaves none), as the reference code's
+/// search skips them (Ingrid789/SkillMimic-V2
+/// `skillmimic/utils/motion_data_handler.py`,
+/// `_randskill_find_class_most_similarity_state`).
 fn candidates(lib: &MotionLib, clip: usize) -> Vec<usize> {
     let c = &lib.frames[clip];
     let inner: Vec<usize> = (2..c.frames.saturating_sub(1))

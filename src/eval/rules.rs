@@ -1,6 +1,7 @@
-//! Success rules per skill (reference §11.2, the released metric files; the
-//! paper gives only their names). Each rule sees one [`Probe`] per policy
-//! step of a trial, with the step index n from 0, and decides success at the
+//! Success rules per skill (the released metric files, Ingrid789/SkillMimic-V2
+//! `skillmimic/metric/*_metric.py`; the paper gives only their names). Each
+//! rule sees one [`Probe`] per policy step of a trial, with the step index n
+//! from 0, and decides success at the
 //! end.
 //!
 //! | skill | per-step condition | success |

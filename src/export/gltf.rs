@@ -3,8 +3,9 @@
 //!
 //! # Document (glTF 2.0 specification, Khronos, version 2.0.1)
 //! * One scene. Per character (as many as the motion with the most tracks
-//!   has: a rollout and its reference make two) a node `character K`
-//!   holding a node tree of the MJCF humanoid (§3.5.2 Nodes and hierarchy):
+//!   has: a rollout and its reference make two) a node `character K:
+//!   ROLES` (the track names it plays, `character 1: reference`) holding
+//!   a node tree of the MJCF humanoid (§3.5.2 Nodes and hierarchy):
 //!   one node per body, nested like the model, named after the body
 //!   (`Pelvis`; characters after the first add `.K`), its `translation` the
 //!   body's offset in its parent's frame (MJCF `pos`), its `rotation`
@@ -310,7 +311,7 @@ impl Doc {
         let nrm: Vec<f32> = m.nrm.iter().flatten().copied().collect();
         let p = self.floats(&pos, 3, true, Some(ArrayBuffer));
         let n = self.floats(&nrm, 3, false, Some(ArrayBuffer));
-        // u16 where every index fits below its restart value 65535 (§3.7.2.1)
+        // u16 where every index fits below its restart value 65535 (glTF 2.0 §3.7.2.1)
         let (bytes, component) = if m.pos.len() < 65535 {
             let b: Vec<u8> = m
                 .idx
@@ -570,7 +571,16 @@ pub fn to_glb(model: &Model, objects: &[ObjectSpec], motions: &[Motion]) -> Resu
                 doc.root.push(n)
             })
             .collect();
-        let mut top = empty_node(format!("character {k}"));
+        // named after what it plays: "character 1: reference"
+        let mut roles: Vec<&str> = Vec::new();
+        for m in motions {
+            if let Some(t) = m.tracks.get(k) {
+                if !roles.contains(&t.name.as_str()) {
+                    roles.push(&t.name);
+                }
+            }
+        }
+        let mut top = empty_node(format!("character {k}: {}", roles.join(" / ")));
         if k > 0 {
             top.translation = Some([CHARACTER_SPACING * k as f32, 0.0, 0.0]);
         }
@@ -924,7 +934,7 @@ mod tests {
         let scene = doc["scenes"][0]["nodes"].as_array().unwrap();
         assert_eq!(scene.len(), 2);
         let c1 = &doc["nodes"][scene[1].as_u64().unwrap() as usize];
-        assert_eq!(c1["name"], "character 1");
+        assert_eq!(c1["name"], "character 1: reference");
         assert_eq!(c1["translation"], serde_json::json!([1.5, 0.0, 0.0]));
         let names: Vec<&str> = doc["nodes"]
             .as_array()
@@ -938,11 +948,11 @@ mod tests {
                 "root",
                 "arm",
                 "ball",
-                "character 0",
+                "character 0: rollout / reference",
                 "root.1",
                 "arm.1",
                 "ball.1",
-                "character 1"
+                "character 1: reference"
             ]
         );
         assert_eq!(

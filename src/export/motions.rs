@@ -227,6 +227,12 @@ pub fn gather(lib: &MotionLib, sel: &Selection) -> Result<Vec<Motion>> {
             p.clone()
         };
         let steps = crate::table::rollout::read(&file)?;
+        // the references are clip ids of the evaluated run's clips
+        crate::table::check_ingest_id(
+            &file,
+            &crate::table::ingest_id(&sel.from.join("clips.parquet"))?,
+            "eval --record N",
+        )?;
         if steps.is_empty() {
             bail!(
                 "{}: no recorded steps (run `skillaug eval --record N`)",

@@ -318,10 +318,12 @@ fn segments(parts: &[(String, usize)]) -> Vec<Segment> {
 }
 
 /// The segments of the policy observation, in the order
-/// [`crate::rl::humanoid::write_observation`] writes them (reference
-/// §3.1/§3.2); their lengths add up to [`obs_dim`]`(sk, n_objects,
-/// he_dim)` (902 for BallPlay, one object, no encoder). "Heading frame":
-/// world frame turned about the vertical by minus the root's heading.
+/// [`crate::rl::humanoid::write_observation`] writes them (the reference code's
+/// order: Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/humanoid_task.py`,
+/// `humanoid_object_task.py`, `skillmimic1.py`, `skillmimic1_hist.py`); their
+/// lengths add up to [`obs_dim`]`(sk, n_objects, he_dim)` (902 for BallPlay,
+/// one object, no encoder). "Heading frame": world frame turned about the
+/// vertical by minus the root's heading.
 ///
 /// - `root_height` (1): root z, m.
 /// - `body_pos` (3 per body 1..): body position minus root position, heading frame, m.

@@ -1,7 +1,7 @@
 //! The per-frame state of one clip, derived from its `[frames, D]` tensor.
 //!
-//! Everything here follows reference §1.8 (the V2 BallPlay loader), applied to
-//! every layout:
+//! Everything here follows the V2 BallPlay loader (Ingrid789/SkillMimic-V2
+//! `skillmimic/utils/motion_data_handler.py`), applied to every layout:
 //! * velocities are backward differences times the frame rate, zero at frame 0;
 //! * if frame `i` or `i - 1` is missing, the velocity at `i` is copied from
 //!   `i - 1` (applied in frame order, so a run of missing frames carries the
@@ -17,7 +17,8 @@
 //!
 //! Where skillaug departs from the reference code, on purpose:
 //! * The ParaHome reference loader differentiates the root rotation twice (a
-//!   bug, reference §1.8); skillaug applies the BallPlay rule to every layout.
+//!   bug, `skillmimic/utils/paramotion_data_handler.py`); skillaug applies the
+//!   BallPlay rule to every layout.
 //! * The reference takes the object "angular velocity" as the backward
 //!   difference of the rotation vectors, which is not an angular velocity;
 //!   skillaug uses the quaternion rule of the root by default
@@ -26,8 +27,9 @@
 //!   identity, so the two agree there.
 //! * Object quaternions are sign-smoothed like the root's.
 //!
-//! A missing frame is a row whose D values are all exactly zero (reference
-//! §1.5, paper Eq. 5); its state is kept out of the tables (null).
+//! A missing frame is a row whose D values are all exactly zero
+//! (`motion_data_handler.py`, paper Eq. 5); its state is kept out of the
+//! tables (null).
 
 use super::layout::Layout;
 use super::quat::{self, Quat, Vec3};
@@ -37,7 +39,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
 pub enum AngvelFrame {
-    /// `expmap(conj(q[i-1]) q[i]) fps`: the reference loader's rule (§1.8).
+    /// `expmap(conj(q[i-1]) q[i]) fps`: the reference loader's rule
+    /// (Ingrid789/SkillMimic-V2 `skillmimic/utils/motion_data_handler.py`).
     #[default]
     Body,
     /// `expmap(q[i] conj(q[i-1])) fps`: the world-frame angular velocity.
@@ -314,7 +317,8 @@ fn smoothed_quats(rows: &[&[f32]], valid: &[bool], e: impl Fn(&[f32]) -> Vec3) -
 }
 
 /// Backward difference times `fps` of a `[F, width]` array with the
-/// missing-frame copy rule of reference §1.8.
+/// missing-frame copy rule of the reference loader (Ingrid789/SkillMimic-V2
+/// `skillmimic/utils/motion_data_handler.py`, `_compute_velocity`).
 pub fn backward_diff(x: &[f32], width: usize, valid: &[bool], fps: f64) -> Vec<f32> {
     let f = valid.len();
     let mut v = vec![0f32; f * width];

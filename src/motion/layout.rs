@@ -1,7 +1,10 @@
 //! Column layouts of the clip tensors and the two humanoid skeletons.
 //!
-//! A clip is a `[frames, D]` float32 tensor. Three layouts exist (reference
-//! §1.2 and §1.3):
+//! A clip is a `[frames, D]` float32 tensor. Three layouts exist (the loaders
+//! of Ingrid789/SkillMimic-V2: `skillmimic/utils/motion_data_handler.py`,
+//! `_process_sequence`, for D = 337; `paramotion_data_handler.py` and
+//! `paramotion_data_handler_multiobj.py` for ParaHome, whose clips are written
+//! by `skillmimic/data/motions/ParaHome/pt_data_from_parahome.py`):
 //!
 //! | D | datasets | columns |
 //! |---|---|---|
@@ -9,8 +12,9 @@
 //! | 409 | ParaHome, one object | root pos 0:3, root rotation vector 3:6, zeros 6:9, 60x3 joint exp-maps 9:189, 71x3 position slots 189:402 (slots 61..70 unused), object pos 402:405, object rotation vector 405:408, contact 408 |
 //! | 415 | ParaHome, two objects | as 409, then object 1 pos 408:411 and rotation 411:414, contact 414 |
 //!
-//! Body order is MJCF depth-first order (reference §2.1/§2.2); joint `j`
-//! (0-based) drives body `j + 1`.
+//! Body order is MJCF depth-first order (Ingrid789/SkillMimic-V2
+//! `skillmimic/data/assets/mjcf/mocap_humanoid.xml`,
+//! `mocap_parahome_boxhand.xml`); joint `j` (0-based) drives body `j + 1`.
 
 use std::fmt;
 
@@ -61,7 +65,8 @@ impl Skeleton {
 
     /// The 17 key bodies of the reward and the similarity (body indices, in
     /// key-body slot order: head, knees, elbows, ankles, then the left and
-    /// right fingertips; reference §2.1/§2.2).
+    /// right fingertips; the `keyBodies` lists of Ingrid789/SkillMimic-V2
+    /// `skillmimic/data/cfg/skillmimic.yaml` and `skillmimic_parahome.yaml`).
     pub fn key_bodies(self) -> &'static [usize; 17] {
         match self {
             Skeleton::MocapHumanoid => &[
@@ -73,7 +78,8 @@ impl Skeleton {
         }
     }
 
-    /// The bodies of the SM reward's body-contact penalty (reference §4.2).
+    /// The bodies of the SM reward's body-contact penalty (hard-coded in
+    /// Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/skillmimic1.py`).
     pub fn contact_penalty_bodies(self) -> &'static [usize] {
         match self {
             Skeleton::MocapHumanoid => {
@@ -149,7 +155,9 @@ impl Layout {
         }
     }
 
-    /// Frame rate of the published clips, Hz (reference §1.6).
+    /// Frame rate of the published clips, Hz (the `dataFPS` of
+    /// Ingrid789/SkillMimic-V2 `skillmimic/data/cfg/skillmimic.yaml` and
+    /// `skillmimic_parahome.yaml`).
     pub fn default_fps(self) -> f64 {
         match self {
             Layout::BallPlay337 => 60.0,
@@ -180,7 +188,9 @@ impl Layout {
         }
     }
 
-    /// Whether the object rotation is stored negated (BallPlay only, reference §1.4).
+    /// Whether the object rotation is stored negated (BallPlay only:
+    /// Ingrid789/SkillMimic-V2 `skillmimic/utils/motion_data_handler.py`
+    /// negates it, `paramotion_data_handler.py` does not).
     pub fn object_rotation_negated(self) -> bool {
         self == Layout::BallPlay337
     }
@@ -234,7 +244,8 @@ impl fmt::Display for Layout {
     }
 }
 
-/// Bodies of `mocap_humanoid.xml` in body order (reference §2.1).
+/// Bodies of `mocap_humanoid.xml` (Ingrid789/SkillMimic-V2
+/// `skillmimic/data/assets/mjcf/`) in body order.
 pub const BALLPLAY_BODIES: [&str; 53] = [
     "Pelvis",
     "L_Hip",
@@ -291,7 +302,8 @@ pub const BALLPLAY_BODIES: [&str; 53] = [
     "R_Thumb3",
 ];
 
-/// Bodies of `mocap_parahome_boxhand.xml` in body order (reference §2.2).
+/// Bodies of `mocap_parahome_boxhand.xml` (Ingrid789/SkillMimic-V2
+/// `skillmimic/data/assets/mjcf/`) in body order.
 pub const PARAHOME_BODIES: [&str; 61] = [
     "pHipOrigin",
     "jL5S1",

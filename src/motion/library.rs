@@ -46,32 +46,38 @@ pub fn check_classes<'a>(clips: impl IntoIterator<Item = (&'a str, &'a str, u32)
     use std::collections::BTreeMap;
     let mut by_class: BTreeMap<u32, (&str, &str)> = BTreeMap::new();
     let mut by_skill: BTreeMap<&str, (u32, &str)> = BTreeMap::new();
+    let mut faults = Vec::new();
     for (name, skill, class) in clips {
         if class as usize >= CONDITION_SLOTS {
-            bail!(
+            faults.push(format!(
                 "clip {name} (skill {skill}): class id {class} does not fit the {CONDITION_SLOTS}-slot \
-                 skill condition (ids 0-{}); renumber the skill (a folder clip's class is the first \
-                 three characters of its file name, a manifest's its `class` key)",
+                 skill condition (ids 0-{})",
                 CONDITION_SLOTS - 1
-            );
+            ));
+            continue;
         }
-        if let Some((other, other_name)) = by_class.insert(class, (skill, name)) {
-            if other != skill {
-                bail!(
-                    "class id {class} is given to two skills, {other} (clip {other_name}) and {skill} \
-                     (clip {name}): the skill condition could not tell them apart; give each skill \
-                     its own class id"
-                );
-            }
+        let (other, other_name) = *by_class.entry(class).or_insert((skill, name));
+        if other != skill {
+            faults.push(format!(
+                "class id {class} is given to two skills, {other} (clip {other_name}) and {skill} \
+                 (clip {name}): the skill condition could not tell them apart"
+            ));
         }
-        if let Some((other, other_name)) = by_skill.insert(skill, (class, name)) {
-            if other != class {
-                bail!(
-                    "skill {skill} has two class ids, {other} (clip {other_name}) and {class} (clip \
-                     {name}); give every clip of a skill the same class id"
-                );
-            }
+        let (other, other_name) = *by_skill.entry(skill).or_insert((class, name));
+        if other != class {
+            faults.push(format!(
+                "skill {skill} has two class ids, {other} (clip {other_name}) and {class} (clip \
+                 {name})"
+            ));
         }
+    }
+    if !faults.is_empty() {
+        bail!(
+            "{}\n(each skill needs its own class id below {CONDITION_SLOTS}, the same for all its \
+             clips: a folder clip's class is the first three characters of its file name, a \
+             manifest clip's its `class` key)",
+            faults.join("\n")
+        );
     }
     Ok(())
 }

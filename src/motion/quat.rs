@@ -1,10 +1,12 @@
 //! Quaternion and exponential-map maths used by the data stages.
 //!
 //! Quaternions are stored **(x, y, z, w)** everywhere in skillaug, the order of
-//! the reference data (reference §0). An exp-map (rotation vector) is axis x
-//! angle in radians. The small-angle rules follow reference §0: below 1e-5 rad
-//! an exp-map maps to the identity, and a quaternion whose vector part has a
-//! sine below 1e-5 maps to the zero exp-map.
+//! the reference data and code (Ingrid789/SkillMimic-V2
+//! `skillmimic/utils/torch_utils.py`). An exp-map (rotation vector) is axis x
+//! angle in radians. The small-angle rules follow `exp_map_to_quat` and
+//! `quat_to_exp_map` of that file: below 1e-5 rad an exp-map maps to the
+//! identity, and a quaternion whose vector part has a sine below 1e-5 maps
+//! to the zero exp-map.
 
 /// A quaternion in (x, y, z, w) order.
 pub type Quat = [f64; 4];
@@ -16,7 +18,8 @@ pub const IDENTITY: Quat = [0.0, 0.0, 0.0, 1.0];
 
 const SMALL: f64 = 1e-5;
 
-/// Unit quaternion of the rotation vector `e` (reference §0).
+/// Unit quaternion of the rotation vector `e` (`exp_map_to_quat` in
+/// Ingrid789/SkillMimic-V2 `skillmimic/utils/torch_utils.py`).
 pub fn from_expmap(e: Vec3) -> Quat {
     let angle = norm(e);
     if angle <= SMALL {
@@ -27,7 +30,8 @@ pub fn from_expmap(e: Vec3) -> Quat {
 }
 
 /// Rotation vector of the unit quaternion `q`, with the angle wrapped to
-/// [-pi, pi] (reference §0), so `q` and `-q` give the same exp-map.
+/// [-pi, pi] (`quat_to_exp_map` in Ingrid789/SkillMimic-V2
+/// `skillmimic/utils/torch_utils.py`), so `q` and `-q` give the same exp-map.
 pub fn to_expmap(q: Quat) -> Vec3 {
     let w = q[3].clamp(-1.0, 1.0);
     let mut angle = 2.0 * w.acos();

@@ -1,26 +1,30 @@
-//! The History Encoder (paper Section 4.6, Appendix B.5, Eqs. 21-23;
-//! reference §9).
+//! The History Encoder (paper Section 4.6, Appendix B.5, Eqs. 21-23; the
+//! reference code is Ingrid789/SkillMimic-V2
+//! `skillmimic/utils/history_encoder.py` (network),
+//! `skillmimic/utils/state_prediction_ballplay.py` (pre-training) and
+//! `skillmimic/env/tasks/skillmimic1_hist.py` (use in the policy)).
 //!
-//! * Per-frame feature (reference §9.1): root height (1); positions of bodies
-//!   1..B-1 relative to the root, turned into the heading frame (3(B-1));
-//!   joint exp-maps (3J); each object's position in the heading frame with
-//!   absolute height (3 per object). BallPlay: 1 + 156 + 156 + 3 = 316
+//! * Per-frame feature (`skillmimic1_hist.py`): root height (1); positions of
+//!   bodies 1..B-1 relative to the root, turned into the heading frame
+//!   (3(B-1)); joint exp-maps (3J); each object's position in the heading frame
+//!   with absolute height (3 per object). BallPlay: 1 + 156 + 156 + 3 = 316
 //!   channels. The heading is the true quaternion heading everywhere (the
-//!   reference pre-training passes an exp-map where a quaternion belongs, a
-//!   bug §9.1 says not to copy). ParaHome uses its 60 simulated bodies (the
-//!   reference's 70 data slots include ten empty ones): 1 + 180 + 180 + 3.
-//!   Features are standardised per channel with the mean and standard
-//!   deviation of the training frames; both travel in the config.
-//! * Encoder theta (§9.2): three 1-D convolutions over the last k = 60 frames
-//!   (C -> 128 -> 64 -> 32 channels, kernel 3, zero padding 1, ReLU), flattened
-//!   channel-major (32 x 60), then a linear layer to mu = 3.
+//!   reference pre-training, `state_prediction_ballplay.py`, passes an exp-map
+//!   where a quaternion belongs, a bug not copied here). ParaHome uses its 60
+//!   simulated bodies (the reference's 70 data slots include ten empty ones):
+//!   1 + 180 + 180 + 3. Features are standardised per channel with the mean
+//!   and standard deviation of the training frames; both travel in the config.
+//! * Encoder theta (`history_encoder.py`): three 1-D convolutions over the
+//!   last k = 60 frames (C -> 128 -> 64 -> 32 channels, kernel 3, zero
+//!   padding 1, ReLU), flattened channel-major (32 x 60), then a linear layer
+//!   to mu = 3.
 //! * Predictor psi: an MLP (1024-512-512, ReLU) from [c (64-slot one-hot), s_t,
-//!   h_t] to s_{t+1} (Eq. 22; the sizes, the policy's MLP shape).
+//!   h_t] to s_{t+1} (Eq. 22; this project's sizes: the policy's MLP shape).
 //! * Loss, Eq. 23: lambda_a * MSE(s_{t+1}, predicted) + lambda_b * mean |h|^2,
 //!   lambda_a = 1, lambda_b = 1e-5 (the reference code has no regulariser).
-//! * Windows (reference §9.4): for frame t, history = frames [t-60, t); slots
-//!   before the clip's start, and missing frames, are zeros (in standardised
-//!   units, i.e. the mean frame).
+//! * Windows (as in `state_prediction_ballplay.py`): for frame t, history =
+//!   frames [t-60, t); slots before the clip's start, and missing frames, are
+//!   zeros (in standardised units, i.e. the mean frame).
 
 use super::{Mlp, Params};
 use crate::motion::{quat, MotionLib, Skeleton, State};
@@ -61,6 +65,10 @@ pub struct HeConfig {
     pub mean: Vec<f32>,
     /// Per-channel standard deviation (floored at 1e-3).
     pub std: Vec<f32>,
+    /// The ingest run whose clips it was trained on
+    /// ([`crate::table::ingest_id`]; absent in files of older versions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ingest_id: Option<String>,
 }
 
 /// Channels of the per-frame feature.

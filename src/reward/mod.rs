@@ -1,4 +1,7 @@
-//! Rewards and state similarity (paper Appendix B.3-B.4; reference §4, §6.1).
+//! Rewards and state similarity (paper Appendix B.3-B.4; reference code:
+//! Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/skillmimic1.py` and
+//! `skillmimic1_unified.py` for the reward,
+//! `skillmimic/utils/motion_data_handler.py` for the similarity).
 //!
 //! * SM multiplicative reward, Eqs. 12-17: r = r_b r_o r_rel r_cg, every term
 //!   exp(-lambda * MSE); weights per dataset from Table 8 ([`Weights::sm`]).
@@ -7,14 +10,14 @@
 //! * Similarity S_k(s_A, s_B) = r_b r_o r_rel, Eq. 19, after aligning s_B's
 //!   root xy (and, by default, its heading) to s_A's ([`similarity`]).
 //!
-//! What each MSE runs over (the paper names the terms; the reference code
-//! fixes the operands, §4.2): positions = the root position followed by the
-//! 17 key bodies (54 numbers); rotations = the root exp-map followed by every
-//! joint exp-map, compared component by component (159 or 183 numbers); body
-//! velocities = the same 18 points' velocities; joint velocities = the joint
-//! exp-map velocities; object terms over every object's position, quaternion,
-//! linear and angular velocity; relative motion = (key point - object
-//! position) for the 18 points and every object.
+//! What each MSE runs over (the paper names the terms; the reference code fixes
+//! the operands, `skillmimic1.py`): positions = the root position followed by
+//! the 17 key bodies (54 numbers); rotations = the root exp-map followed by
+//! every joint exp-map, compared component by component (159 or 183 numbers);
+//! body velocities = the same 18 points' velocities; joint velocities = the
+//! joint exp-map velocities; object terms over every object's position,
+//! quaternion, linear and angular velocity; relative motion = (key point -
+//! object position) for the 18 points and every object.
 //!
 //! Contact graph (Eq. 17): the paper's three pairs ball-hands, ball-body and
 //! body-hands, with the reference edges taken from the clip's single contact
@@ -28,8 +31,8 @@
 //! Root rotation: compared on the nearest exp-map branch by default
 //! ([`RootRot::Nearest`]); the reference code's raw component difference is
 //! [`RootRot::Raw`].
-//! The reference code's extra smoothness factor (§4.2) is the option
-//! [`RewardOptions::smoothness`], off by default.
+//! The reference code's extra smoothness factor (`skillmimic1.py`) is the
+//! option [`RewardOptions::smoothness`], off by default.
 
 use crate::motion::quat;
 use crate::motion::{Skeleton, State};
@@ -121,7 +124,9 @@ impl Weights {
     }
 
     /// These weights without the object and contact terms: the reward of
-    /// classes 0 and 10 (no object; reference §4.2/§4.4: the body factor only).
+    /// classes 0 and 10 (no object; the body factor only, as in
+    /// Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/skillmimic1_unified.py`
+    /// and `skillmimic/utils/motion_data_handler.py`).
     pub fn without_object(self) -> Weights {
         Weights {
             op: 0.0,
@@ -135,7 +140,8 @@ impl Weights {
     }
 
     /// DM weights, paper Table 9 (ParaHome uses the BallPlay row, as the
-    /// reference code's DM ParaHome configs do, §4.4).
+    /// reference code's DM ParaHome configs do, Ingrid789/SkillMimic-V2
+    /// `skillmimic/data/cfg/parahome_dm/*.yaml`).
     pub fn dm(kind: DatasetKind) -> Weights {
         Weights {
             p: 40.0,
@@ -163,8 +169,9 @@ pub enum ContactRule {
     /// Paper Eq. 17: three pairs (ball-hands, ball-body, body-hands).
     #[default]
     Paper,
-    /// Reference code §4.2: body-contact penalty (weight cg[2]) and ball contact
-    /// vs. the flag (weight cg[0]).
+    /// Reference code (Ingrid789/SkillMimic-V2
+    /// `skillmimic/env/tasks/skillmimic1.py`): body-contact penalty (weight
+    /// cg[2]) and ball contact vs. the flag (weight cg[0]).
     Reference,
 }
 
@@ -394,7 +401,8 @@ fn object_factor(e: &Errors, w: &Weights) -> f64 {
     (-w.op * e.op - w.or * e.or - w.opv * e.opv - w.orv * e.orv).exp()
 }
 
-/// The reference code's hidden smoothness factor (§4.2):
+/// The reference code's hidden smoothness factor (Ingrid789/SkillMimic-V2
+/// `skillmimic/env/tasks/skillmimic1.py`):
 /// exp(-0.1 mean((qd - qd_prev)^2 / (1e12 (qd_ref^2 + 1e-12)))).
 pub fn smoothness(joint_vel: &[f32], prev_joint_vel: &[f32], ref_joint_vel: &[f32]) -> f64 {
     let n = joint_vel.len().max(1) as f64;
@@ -473,7 +481,8 @@ pub fn dm_reward(sim: &State, reference: &State, sk: Skeleton, w: &Weights, root
         .sum()
 }
 
-/// How a state is moved onto another before comparing (reference §6.1).
+/// How a state is moved onto another before comparing (Ingrid789/SkillMimic-V2
+/// `skillmimic/utils/motion_data_handler.py`, `get_local_motion`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Align {
@@ -492,7 +501,8 @@ impl Default for Align {
     }
 }
 
-/// Heading of a root quaternion: atan2 of the rotated x-axis (reference §0).
+/// Heading of a root quaternion: atan2 of the rotated x-axis (`calc_heading`
+/// in Ingrid789/SkillMimic-V2 `skillmimic/utils/torch_utils.py`).
 pub fn heading(q: [f32; 4]) -> f64 {
     let q = q.map(|v| v as f64);
     let x = quat::rotate(q, [1.0, 0.0, 0.0]);

@@ -4,38 +4,43 @@
 //! Stitched Trajectory Graph samples, with Adaptive Trajectory Sampling).
 //!
 //! Followed, with sources:
-//! - Observation: reference §3.1/§3.2 ([`obs_dim`], [`write_observation`]):
-//!   root height; bodies 1.. relative to the root, tan-norm rotations, linear
-//!   and angular velocities of every body, all in the heading frame; raw
-//!   world-frame net contact forces on the ten fingertips; per object its
-//!   heading-frame xy offset with absolute height, tan-norm rotation, linear
-//!   and angular velocity; a 64-slot one-hot of the skill class; optionally
-//!   the 3-D history embedding of the frozen encoder (§9.3: computed from the
-//!   60 feature frames *before* the current one is appended; at a reset the
-//!   history is the reference clip's frames before the start frame).
+//! - Observation: as Ingrid789/SkillMimic-V2 builds it
+//!   (`skillmimic/env/tasks/humanoid_task.py`, `humanoid_object_task.py`,
+//!   `skillmimic1.py` for the condition, `skillmimic1_hist.py` for the history;
+//!   [`obs_dim`], [`write_observation`]): root height; bodies 1.. relative to
+//!   the root, tan-norm rotations, linear and angular velocities of every body,
+//!   all in the heading frame; raw world-frame net contact forces on the ten
+//!   fingertips; per object its heading-frame xy offset with absolute height,
+//!   tan-norm rotation, linear and angular velocity; a 64-slot one-hot of the
+//!   skill class; optionally the 3-D history embedding of the frozen encoder
+//!   (`skillmimic1_hist.py`: computed from the 60 feature frames *before* the
+//!   current one is appended; at a reset the history is the reference clip's
+//!   frames before the start frame).
 //! - Reward: the paper's timing r_t = S(s_{t+1}, ŝ_{t+1}) (Eq. 12 with the
 //!   post-step state against the next reference frame), not the reference
-//!   code's one-step lag (§4.1). SM (Eqs. 12–17) or DM (Eq. 18) from
-//!   [`crate::reward`]; classes 0 and 10 (no object) use the body factor only
-//!   (§4.4). The SM reward is computed for every method too, as the common
-//!   yardstick of the training metrics.
+//!   code's one-step lag (`_hook_post_step` in `skillmimic1.py`). SM
+//!   (Eqs. 12–17) or DM (Eq. 18) from [`crate::reward`]; classes 0 and 10 (no
+//!   object) use the body factor only
+//!   (`skillmimic/utils/motion_data_handler.py`). The SM reward is computed for
+//!   every method too, as the common yardstick of the training metrics.
 //! - Masked steps (inserted states s∅ and missing reference frames) carry no
 //!   reward of their own: by default their reward is the mean reward, at the
 //!   same step, of the unmasked environments tracking the same clip (else of
-//!   all unmasked ones, else 0), the reference code's rule (§7.4), so they
-//!   neither reward nor punish the value estimate; `masked-reward = "zero"`
-//!   gives 0 instead. They are left out of the reported mean rewards.
+//!   all unmasked ones, else 0), the reference code's rule
+//!   (`skillmimic1_rand.py`), so they neither reward nor punish the value
+//!   estimate; `masked-reward = "zero"` gives 0 instead. They are left out of
+//!   the reported mean rewards.
 //! - Episodes: at most T = `horizon` policy steps (60); a fall (root below
-//!   0.3 m after the first step, or a per-skill height) terminates except
-//!   for class 0 (Getup), §5.1; so does a tracking failure when its
-//!   thresholds are set ([`tracking_lost`]: mean key-point distance to the
-//!   reference, ball too far from the root); a reward-collapse termination
-//!   is an option (off by default); timeouts are truncations, bootstrapped
-//!   by the trainer (§10.4). With `continue_steps` a reference that
-//!   reaches its clip's end continues from the clip's seam
+//!   0.3 m after the first step, or a per-skill height) terminates except for
+//!   class 0 (Getup) (`humanoid_task.py`, `skillmimic1_unified.py`); so does a
+//!   tracking failure when its thresholds are set ([`tracking_lost`]: mean
+//!   key-point distance to the reference, ball too far from the root); a
+//!   reward-collapse termination is an option (off by default); timeouts are
+//!   truncations, bootstrapped by the trainer (as
+//!   `skillmimic/learning/common_agent.py` does). With `continue_steps` a
+//!   reference that reaches its clip's end continues from the clip's seam
 //!   ([`crate::augment::seam`]), anchored to where the character is, so the
-//!   episode runs its full length (the reference code stops at the clip's
-//!   end).
+//!   episode runs its full length (the reference code stops at the clip's end).
 //! - Contacts are read after every physics substep of a policy step
 //!   ([`World::step_with_contacts`]); the ball-hands edge of the reward
 //!   follows [`crate::reward::ContactDetect`].
@@ -44,8 +49,9 @@
 //!   ŝ_{j+1}: the paper's reward timing (Eq. 7 read literally would ask the
 //!   first step to stay at ŝ_j). ε-NSI without STF follows the centroid's
 //!   clip from the next frame with no connection and no masked state.
-//! - Classes 0 and 10 in a world with a ball: the ball is parked 10 m away
-//!   at rest (the reference code throws it to a random place, §5.2).
+//! - Classes 0 and 10 in a world with a ball: the ball is parked 10 m away at
+//!   rest (the reference code throws it to a random place,
+//!   `motion_data_handler.py`).
 //!
 //! Every episode runs in a freshly built world, so an episode depends only
 //! on its start and its actions: [`HumanoidEnv::snapshot`] and
@@ -87,7 +93,9 @@ pub enum Method {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum MaskedReward {
-    /// Mean of the unmasked environments on the same clip at this step (§7.4).
+    /// Mean of the unmasked environments on the same clip at this step (the
+    /// reference code's rule, Ingrid789/SkillMimic-V2
+    /// `skillmimic/env/tasks/skillmimic1_rand.py`).
     #[default]
     ClipMean,
     /// Zero.
@@ -126,7 +134,8 @@ pub struct EnvConfig {
     pub fixed_length: Option<usize>,
     /// ParaHome's object-centric test perturbation of the start: object
     /// turned about the vertical by U[-45°, 45°] and moved by up to 10 cm
-    /// horizontally (paper Section 5; reference §11.3).
+    /// horizontally (paper Section 5; in Ingrid789/SkillMimic-V2 only as
+    /// commented-out code, `skillmimic/env/tasks/skillmimic_parahome.py`).
     pub object_perturb: bool,
     /// Continue a reference that reaches its clip's last valid frame from
     /// the clip's seam ([`crate::augment::seam`]) until the episode has
@@ -174,8 +183,10 @@ impl EnvConfig {
     }
 }
 
-/// Observation size: reference §3.1 (902 for BallPlay, 905 with the history
-/// embedding) and §3.2.
+/// Observation size as in Ingrid789/SkillMimic-V2 (902 for BallPlay, 905 with
+/// the history embedding: `_setup_character_props` in
+/// `skillmimic/env/tasks/humanoid_task.py`, `skillmimic1_hist.py`; ParaHome:
+/// `skillmimic/env/tasks/skillmimic_parahome.py`).
 pub fn obs_dim(sk: Skeleton, n_objects: usize, he_dim: usize) -> usize {
     let b = sk.n_bodies();
     1 + 3 * (b - 1) + 6 * b + 3 * b + 3 * b + 30 + 15 * n_objects + CONDITION_SLOTS + he_dim

@@ -4,15 +4,16 @@
 //! rollout collector ([`collect`]), and a small control task to test the
 //! learner on ([`pointmass`]).
 //!
-//! Reference facts followed (SkillMimic / SkillMimic-V2 released code, see
-//! `skillmimic-v2-reference.md` §10.1–10.4): γ 0.99, GAE λ 0.95, clip 0.2,
-//! Adam lr 2e-5 (paper Table 6), fixed action std σ = e^−2.9 ≈ 0.055 (the
-//! paper's "variance 0.055" is the std in the code; the code is followed,
-//! `sigma_is_variance` gives the paper's reading), separate
-//! `[1024, 512, 512]` ReLU MLPs for policy and value, bounds loss
-//! (coefficient 10, soft bound 1), critic coefficient 5, running observation
-//! normalisation clamped to ±5, and timeouts bootstrapped from the value of
-//! the episode's last state while terminations are not.
+//! Reference facts followed (SkillMimic / SkillMimic-V2 released code:
+//! Ingrid789/SkillMimic-V2 `skillmimic/data/cfg/train/rlg/skillmimic.yaml` and
+//! `skillmimic/learning/`, on Denys88/rl_games 1.1.4): γ 0.99, GAE λ 0.95,
+//! clip 0.2, Adam lr 2e-5 (paper Table 6), fixed action std σ = e^−2.9 ≈ 0.055
+//! (the paper's "variance 0.055" is the std in the code; the code is followed,
+//! `sigma_is_variance` gives the paper's reading), separate `[1024, 512, 512]`
+//! ReLU MLPs for policy and value, bounds loss (coefficient 10, soft bound 1),
+//! critic coefficient 5, running observation normalisation clamped to ±5, and
+//! timeouts bootstrapped from the value of the episode's last state while
+//! terminations are not.
 
 pub mod humanoid;
 pub mod norm;

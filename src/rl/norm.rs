@@ -1,8 +1,9 @@
-//! Running observation normalisation (rl_games `RunningMeanStd`, reference
-//! §10.3): per-dimension mean and variance kept in `f64`, starting from
-//! mean 0, variance 1, count 1, merged batch by batch with the parallel
-//! variance formula (Chan et al.) using the *unbiased* batch variance, and
-//! applied as `(x - mean) / sqrt(var + 1e-5)` clamped to `[-5, 5]`.
+//! Running observation normalisation (rl_games `RunningMeanStd`,
+//! Denys88/rl_games 1.1.4 `rl_games/algos_torch/running_mean_std.py`):
+//! per-dimension mean and variance kept in `f64`, starting from mean 0,
+//! variance 1, count 1, merged batch by batch with the parallel variance
+//! formula (Chan et al.) using the *unbiased* batch variance, and applied as
+//! `(x - mean) / sqrt(var + 1e-5)` clamped to `[-5, 5]`.
 
 use anyhow::{ensure, Result};
 use serde::{Deserialize, Serialize};

@@ -1,27 +1,33 @@
 //! PPO with a fixed-σ Gaussian policy, a separate value network, GAE, a
 //! bounds loss and running observation normalisation, following SkillMimic
-//! (reference §10.1–10.4; defaults are its values):
+//! (Ingrid789/SkillMimic-V2 `skillmimic/data/cfg/train/rlg/skillmimic.yaml`,
+//! `skillmimic/learning/skillmimic_network_builder.py`, `skillmimic_agent.py`
+//! and `common_agent.py`, on Denys88/rl_games 1.1.4; defaults are its values):
 //!
 //! * policy mean and value: separate ReLU MLPs, hidden `[1024, 512, 512]`,
 //!   linear heads; hidden layers use PyTorch's default `Linear` weight
 //!   distribution `U(-1/sqrt(fan_in), 1/sqrt(fan_in))`, every bias is 0
-//!   (§10.1). The policy head is drawn from `U(-0.01, 0.01)` by default so
-//!   that first actions are near 0 (`policy_out_bound`; set it to `null`
-//!   for SkillMimic's plain PyTorch default head).
+//!   (`skillmimic_network_builder.py`; rl_games
+//!   `rl_games/algos_torch/network_builder.py`). The policy head is drawn from
+//!   `U(-0.01, 0.01)` by default so that first actions are near 0
+//!   (`policy_out_bound`; set it to `null` for SkillMimic's plain PyTorch
+//!   default head).
 //! * σ fixed: log σ = −2.9, σ ≈ 0.055 **standard deviation**. The paper calls
-//!   0.055 a "variance"; the released code (reference §10.1) uses it as the
-//!   std, and so do we by default. `sigma_is_variance: true` reads `sigma`
-//!   as a variance (σ = sqrt(sigma)) for the paper's literal wording.
-//! * γ 0.99, GAE λ 0.95, clip ε 0.2, Adam lr 2e-5 (paper Table 6; ε 1e-8,
-//!   no weight decay, constant schedule), 6 mini-epochs, minibatch 16 384,
-//!   critic coefficient 5, plain (unclipped) squared value error, bounds
-//!   loss coefficient 10 on `Σ_d max(|μ_d| − 1, 0)²`, no entropy term, no
-//!   gradient clipping (§10.2–10.3).
+//!   0.055 a "variance"; the released code (`sigma_init` -2.9 with
+//!   `fixed_sigma` in `skillmimic.yaml`) uses it as the std, and so do we by
+//!   default. `sigma_is_variance: true` reads `sigma` as a variance
+//!   (σ = sqrt(sigma)) for the paper's literal wording.
+//! * γ 0.99, GAE λ 0.95, clip ε 0.2, Adam lr 2e-5 (paper Table 6; ε 1e-8, no
+//!   weight decay, constant schedule), 6 mini-epochs, minibatch 16 384, critic
+//!   coefficient 5, plain (unclipped) squared value error, bounds loss
+//!   coefficient 10 on `Σ_d max(|μ_d| − 1, 0)²`, no entropy term, no gradient
+//!   clipping (the `config` block of `skillmimic.yaml`; the loss in
+//!   `common_agent.py`).
 //! * advantages = GAE returns − values, normalised over the **whole batch**
 //!   (zero mean, unit std + 1e-8) before the mini-epochs, as rl_games does.
 //! * `done` (termination: no bootstrap) and `timeout` (truncation: bootstrap
 //!   from V of the episode's last observation, which the caller supplies)
-//!   are separate (§10.4).
+//!   are separate (`common_agent.py`).
 //! * observation normalisation: the running statistics are merged once per
 //!   update with the whole rollout batch, before the mini-epochs, and are
 //!   frozen during rollouts. rl_games merges on every minibatch forward in
@@ -424,7 +430,8 @@ pub struct GaeInput<'a> {
     pub num_envs: usize,
 }
 
-/// Generalised advantage estimation (reference §10.4):
+/// Generalised advantage estimation (Ingrid789/SkillMimic-V2
+/// `skillmimic/learning/common_agent.py`):
 /// `next_v = 0` if terminated, the supplied bootstrap value if truncated,
 /// `V(s_{t+1})` otherwise; `δ_t = r_t + γ next_v − V_t`;
 /// `A_t = δ_t + γλ (1 − done_t) A_{t+1}` with `done = terminated ∨

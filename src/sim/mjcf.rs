@@ -2,7 +2,9 @@
 //! `mocap_parahome_boxhand.xml`, 61 bodies), read with our own small reader
 //! over `roxmltree`: only bodies, their offsets, hinge joints (gains,
 //! armature) and geoms are needed. Body order is depth-first document order,
-//! the order of the data (reference §2.1).
+//! the order of the data (the clips of Ingrid789/SkillMimic-V2; its reward
+//! code, `skillmimic/env/tasks/skillmimic1.py`, lists the BallPlay bodies in
+//! this order).
 //!
 //! MuJoCo's default mechanism applies to every attribute read here: the
 //! top-level `<default>` is class "main" (several top-level sections amend
@@ -591,7 +593,7 @@ fn geom(e: &Element) -> Result<Geom> {
     })
 }
 
-/// Forward kinematics with exp-map joints (reference §1.4): each non-root
+/// Forward kinematics with exp-map joints (docs/simulation.md): each non-root
 /// body's local rotation is `quat_from_expmap(its joint triple)`; returns
 /// world body positions `[B*3]`.
 pub fn forward_kinematics(

@@ -1,4 +1,7 @@
-//! The objects the humanoid interacts with (reference §2.4).
+//! The objects the humanoid interacts with (docs/simulation.md; reference code:
+//! Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/humanoid_object_task.py`,
+//! `skillmimic/data/assets/urdf/ball.urdf`, `skillmimic/data/assets/obj/*.urdf`
+//! and the configs under `skillmimic/data/cfg/`).
 //!
 //! | object | collision shape | density kg/m^3 | restitution | friction |
 //! |---|---|---|---|---|

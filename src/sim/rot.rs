@@ -3,11 +3,12 @@
 //! exp-map drive target to the per-axis angles that a spherical joint's
 //! motors measure.
 //!
-//! Joint coordinates are exp-maps (reference §1.4): a joint's local rotation
-//! is `exp(e)`. Their time derivatives `de/dt` (the data's DoF velocities,
-//! backward differences of the triples) relate to the relative angular
-//! velocity `w` expressed in the parent frame by the left Jacobian of SO(3):
-//! `w = J_l(e) de/dt`, `de/dt = J_l(e)^-1 w`.
+//! Joint coordinates are exp-maps (docs/simulation.md; Ingrid789/SkillMimic-V2
+//! `skillmimic/env/tasks/skillmimic1.py`, `_reset_humanoid`): a joint's local
+//! rotation is `exp(e)`. Their time derivatives `de/dt` (the data's DoF
+//! velocities, backward differences of the triples) relate to the relative
+//! angular velocity `w` expressed in the parent frame by the left Jacobian of
+//! SO(3): `w = J_l(e) de/dt`, `de/dt = J_l(e)^-1 w`.
 
 use rapier3d::math::{Rotation, Vector};
 

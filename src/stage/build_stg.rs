@@ -1,6 +1,7 @@
 //! `skillaug build-stg`: the Stitched Trajectory Graph of an ingested run
-//! folder (paper Section 4.4, Appendix B.4; reference §6; algorithm in
-//! [`crate::augment::stg`]).
+//! folder (paper Section 4.4, Appendix B.4; reference code:
+//! Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/offline_state_search.py`;
+//! algorithm in [`crate::augment::stg`]).
 
 use super::{Common, Outputs};
 use crate::augment::stg::{self, StgParams};

@@ -1,7 +1,7 @@
 //! `skillaug check-fk`: every frame of every selected clip is set into the
 //! rapier3d world ([`crate::sim::World::set_state`]) and the body positions
 //! read back ([`crate::sim::World::get_state`]) are compared with the
-//! positions stored in the clip. Joints are exp-maps (reference §1.4).
+//! positions stored in the clip. Joints are exp-maps (docs/simulation.md).
 //! Mean and max error per clip; ParaHome should agree to a few millimetres,
 //! BallPlay and Locomotion to a few centimetres (the capture skeleton's limb
 //! lengths differ from the model's).

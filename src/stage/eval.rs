@@ -1,6 +1,8 @@
-//! `skillaug eval`: success rates of a trained policy (paper Section 5,
-//! reference §11): SR, TSR, ε-NSR and NR, over trials run in parallel with
-//! deterministic actions (σ = 0) and the frozen encoder.
+//! `skillaug eval`: success rates of a trained policy (paper Section 5;
+//! reference code: Ingrid789/SkillMimic-V2
+//! `skillmimic/learning/skillmimic_players.py` and `skillmimic/metric/`): SR,
+//! TSR, ε-NSR and NR, over trials run in parallel with deterministic actions
+//! (σ = 0) and the frozen encoder.
 //!
 //! - SR: start at a random reference frame of skill A (frames [2, F − 2],
 //!   uniform), condition = A, judged by A's rule ([`crate::eval::rules`])
@@ -61,6 +63,9 @@ impl crate::config::Validate for EvalConfig {
         c.count("envs", self.envs as u64, 1, 1 << 20)?;
         c.count("steps", self.steps as u64, 0, 1 << 24)?;
         c.count("record", self.record as u64, 0, self.trials as u64)?;
+        c.holds(!self.metrics.is_empty(), || {
+            "metrics = []: give at least one of sr, tsr, nsr, nr".into()
+        })?;
         for m in &self.metrics {
             c.holds(["sr", "tsr", "nsr", "nr"].contains(&m.as_str()), || {
                 format!("metrics: unknown metric `{m}` (sr, tsr, nsr, nr)")
@@ -123,7 +128,8 @@ pub fn method_label(t: &TrainConfig) -> String {
 }
 
 /// Target ball height of a shot: the reference ball height at the highest
-/// frame of the skill's first clip (reference §11.1).
+/// frame of the skill's first clip (the `layup_target` of
+/// Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/skillmimic1.py`).
 fn shot_target(lib: &MotionLib, skill: &str) -> f32 {
     let Some(&c) = lib.clips_of(skill).first() else {
         return 0.0;
@@ -424,9 +430,10 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
             cells.push(cell("tsr", &a, &b, Some(r), env));
         }
     }
+    let mut warned = std::collections::BTreeSet::new();
     for c in &cells {
         if let (Some(r), Some(n)) = (c.rule, c.env.fixed_length) {
-            if n < r.min_steps() && c.metric == "sr" {
+            if n < r.min_steps() && warned.insert(c.to.clone()) {
                 eprintln!(
                     "warning: eval.steps = {n}: {} trials are shorter than its success rule \
                      needs ({} steps; its own length is {}): every one is scored as a failure",
@@ -473,6 +480,7 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
     let summary = etable::summarise(&label, &rows)?;
     let resolved = common.resolved_toml("eval", &cfg)?;
     let tmeta = table::Meta::new(&dataset, &resolved)
+        .with("ingest_id", table::ingest_id(&input.join("clips.parquet"))?)
         .with("label", label.clone())
         .with("policy", policy.display().to_string());
     let mut out = super::Outputs::new(&common.args.out)?;

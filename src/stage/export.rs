@@ -57,6 +57,9 @@ fn export(a: &ExportArgs, created: &mut Vec<PathBuf>) -> Result<()> {
         (true, true) => bail!("export: motion (--bvh, --gltf) and a policy (--onnx) are two commands"),
         _ => {}
     }
+    if a.onnx.is_none() && a.policy.is_some() {
+        bail!("export: --policy goes with --onnx FILE; motion (--bvh, --gltf) is another command");
+    }
     let mut staged = Staged::new();
     let mut written: Vec<(PathBuf, usize)> = Vec::new();
     if let Some(out) = &a.onnx {
@@ -79,7 +82,8 @@ fn export(a: &ExportArgs, created: &mut Vec<PathBuf>) -> Result<()> {
         let lib = crate::table::load_library(from)?;
         let root = crate::dataset::data_root(a.data_root.as_deref())?;
         let model = Model::for_skeleton(&root, lib.skeleton)?;
-        let sel = a.motions.selection(from, false);
+        // like `view`: every clip when nothing is named
+        let sel = a.motions.selection(from, true);
         let motions = gather(&lib, &sel)?;
         if motions.is_empty() {
             bail!("export: nothing to export: give --clip, --skill, --stf or --rollouts");

@@ -1,5 +1,7 @@
 //! `skillaug ingest`: motion clips (`.pt`) into `clips.parquet` and
-//! `frames.parquet` (reference §1; derivations in [`crate::motion::clip`]).
+//! `frames.parquet` (the clip format of Ingrid789/SkillMimic-V2, read there by
+//! `skillmimic/utils/motion_data_handler.py`; derivations in
+//! [`crate::motion::clip`]).
 
 use super::{Common, Outputs};
 use crate::dataset::{self, ClipSet, ClipSource};
@@ -23,10 +25,13 @@ pub struct IngestConfig {
     /// Only these skills (empty = all).
     pub skills: Vec<String>,
     /// Frame rate for finite differences, Hz; 0 = the manifest's, else 60 for
-    /// D = 337 and 30 for ParaHome layouts (reference §1.6).
+    /// D = 337 and 30 for ParaHome layouts (the `dataFPS` of
+    /// Ingrid789/SkillMimic-V2 `skillmimic/data/cfg/skillmimic.yaml` and
+    /// `skillmimic_parahome.yaml`).
     pub fps: f64,
-    /// Frame of the root and object angular velocities: "body" (reference
-    /// §1.8) or "world".
+    /// Frame of the root and object angular velocities: "body" (the reference
+    /// loader, Ingrid789/SkillMimic-V2 `skillmimic/utils/motion_data_handler.py`)
+    /// or "world".
     pub angvel_frame: AngvelFrame,
     /// Object angular velocity: "quat-diff" (true angular velocity) or
     /// "expmap-diff" (the reference code's difference of rotation vectors).

@@ -1,5 +1,6 @@
 //! `skillaug pretrain-he`: pre-train the history encoder by behaviour cloning
-//! on the ingested reference clips (paper Appendix B.5, Eq. 23; reference §9;
+//! on the ingested reference clips (paper Appendix B.5, Eq. 23; reference code:
+//! Ingrid789/SkillMimic-V2 `skillmimic/utils/state_prediction_ballplay.py`;
 //! networks in [`crate::nn::he`]).
 
 use super::{Common, Outputs};
@@ -248,10 +249,11 @@ pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
         conv: set.conv.clone(),
         kernel: set.kernel,
         predictor_hidden: set.predictor_hidden.clone(),
-        condition_slots: 64,
+        condition_slots: crate::motion::library::CONDITION_SLOTS,
         feature_layout: he::layout_text(lib.skeleton, n_objects),
         mean,
         std,
+        ingest_id: Some(table::ingest_id(&common.input_dir().join("clips.parquet"))?),
     };
     let feats = he::clip_features(&lib, &cfg);
     let samples = samples(&feats);

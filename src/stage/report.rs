@@ -2,7 +2,7 @@
 //! shaped like the paper's (methods as rows; per skill an
 //! "SR / εNSR / NR" cell; Avg.; TSR columns and their average), printed and
 //! optionally written as Markdown. `--with-reference` adds the paper's rows
-//! (Tables 1, 2 and 5, `reference/paper-results.md`) beside ours.
+//! (the paper's Tables 1, 2 and 5) beside ours.
 
 use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
@@ -706,7 +706,7 @@ mod tests {
                     p.avg.0
                 );
                 // Table 2's SM+T eNSR Avg. (15.6) is not the mean of its cells
-                // (10.64): a known inconsistency of the paper (paper-results.md, 11)
+                // (10.64): a known inconsistency of the paper (Table 2 as printed)
                 if !(p.method == "SM+T" && std::ptr::eq(t, TABLE2)) {
                     assert!(
                         (b - p.avg.1).abs() <= 0.051,

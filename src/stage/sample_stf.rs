@@ -1,9 +1,10 @@
-//! `skillaug sample-stf`: trajectories sampled from the State Transition
-//! Field with Adaptive Trajectory Sampling (paper Sections 4.3-4.5,
-//! Algorithm 1, Table 7; reference §7, §8), written to `stf_samples.parquet`
-//! so that a user can inspect what the trainer will see. The algorithm lives
-//! in [`crate::augment::stf`] and [`crate::augment::ats`]; the trainer calls
-//! the same code online.
+//! `skillaug sample-stf`: trajectories sampled from the State Transition Field
+//! with Adaptive Trajectory Sampling (paper Sections 4.3-4.5, Algorithm 1,
+//! Table 7; reference code: Ingrid789/SkillMimic-V2
+//! `skillmimic/env/tasks/skillmimic1_rand.py` and `skillmimic1_reweight.py`),
+//! written to `stf_samples.parquet` so that a user can inspect what the trainer
+//! will see. The algorithm lives in [`crate::augment::stf`] and
+//! [`crate::augment::ats`]; the trainer calls the same code online.
 //!
 //! Each trajectory gets its own ChaCha8 stream (seed = `--seed`, stream =
 //! trajectory id), so the output depends only on the inputs, the settings and

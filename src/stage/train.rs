@@ -10,10 +10,11 @@
 //! cores: on the DF clips, seed 0, the mean SM reward per step at 2M
 //! samples was 0.129 with 512 x 32 / minibatch 4,096, 0.149 with 256 x 32,
 //! and 0.187 with 128 x 32 / minibatch 2,048, the last at about the same
-//! samples/s; `stages/df-run.toml`) or `"paper"` (Table 6 and reference §10.2:
-//! 2,048 x 32 = 65,536 samples, 1024-512-512 networks, minibatch 16,384,
-//! lr 2e-5). Both use 6 mini-epochs, γ 0.99, λ 0.95, clip 0.2 and the fixed
-//! σ 0.055.
+//! samples/s; `stages/df-run.toml`) or `"paper"` (Table 6 and the configs of
+//! Ingrid789/SkillMimic-V2, `skillmimic/data/cfg/skillmimic.yaml` and
+//! `skillmimic/data/cfg/train/rlg/skillmimic.yaml`: 2,048 x 32 = 65,536
+//! samples, 1024-512-512 networks, minibatch 16,384, lr 2e-5). Both use 6
+//! mini-epochs, γ 0.99, λ 0.95, clip 0.2 and the fixed σ 0.055.
 //!
 //! The neighbourhood radii, τ, N_max, the ATS exponents and the other STF
 //! settings are read from the recipe's `[sample-stf]` table (one recipe
@@ -101,7 +102,8 @@ pub struct TrainConfig {
     pub fall_height: f32,
     /// End an episode when an unmasked SM reward is below this (0 = off).
     pub collapse_reward: f64,
-    /// "clip-mean" (reference §7.4) or "zero".
+    /// "clip-mean" (the reference code's rule, Ingrid789/SkillMimic-V2
+    /// `skillmimic/env/tasks/skillmimic1_rand.py`) or "zero".
     pub masked_reward: MaskedReward,
     /// SM contact graph: "paper" (three pairs) or "reference".
     pub contacts: ContactRule,
@@ -809,6 +811,19 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
             PathBuf::from(&cfg.he_dir)
         };
         let enc = crate::nn::he::load(&dir, &dev)?;
+        // an encoder in the input folder was made from its clips; one from
+        // another folder (`he_dir`) is the user's choice
+        if cfg.he_dir.is_empty() {
+            let id = table::ingest_id(&common.input_dir().join("clips.parquet"))?;
+            if let Some(e) = enc.cfg.ingest_id.as_ref().filter(|e| **e != id) {
+                bail!(
+                    "{}/he.config.json: the history encoder was pre-trained on other clips \
+                     (ingest id {e}) than {} holds now ({id}): run `skillaug pretrain-he` again",
+                    dir.display(),
+                    common.input_dir().display()
+                );
+            }
+        }
         Some(HeRuntime::new(enc, &s.lib, &dev)?)
     } else {
         None

@@ -1,5 +1,7 @@
 //! `frames.parquet`: one row per clip frame, the reference states every later
-//! stage reads. Derivations follow reference §1.8 (see [`crate::motion::clip`]).
+//! stage reads. Derivations follow the reference loader,
+//! Ingrid789/SkillMimic-V2 `skillmimic/utils/motion_data_handler.py` (see
+//! [`crate::motion::clip`]).
 
 use super::columns::{bools, F32Rows};
 use super::{f32_fixed, f32_list, schema_of, ColumnSpec};

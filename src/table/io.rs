@@ -120,9 +120,19 @@ impl Staged {
     /// temporary file by its own (candle's safetensors writer renames a
     /// 0600 file of its own onto the path) does not decide the mode.
     pub fn commit(self) -> Result<()> {
-        for (tmp, dest) in self.files {
+        // Everything that can fail is done for every file before the first
+        // rename, so that a failure moves nothing into place.
+        for (tmp, dest) in &self.files {
+            if dest.is_dir() {
+                bail!(
+                    "cannot write {}: a folder of that name is in the way",
+                    dest.display()
+                );
+            }
             set_fresh_file_mode(tmp.path())?;
             tmp.as_file().sync_all()?;
+        }
+        for (tmp, dest) in self.files {
             tmp.persist(&dest)
                 .map_err(|e| anyhow!("cannot move output into {}: {}", dest.display(), e.error))?;
         }

@@ -152,8 +152,9 @@ pub fn check_ingest_id(path: &std::path::Path, id: &str, stage: &str) -> anyhow:
     if let Some((_, v)) = meta.iter().find(|(k, _)| k == "skillaug.ingest_id") {
         if v != id {
             anyhow::bail!(
-                "{} was made from another ingest run (ingest id {v}) than the clips beside it \
-                 ({id}): two runs wrote into one folder; run `skillaug {stage}` again",
+                "{} was made from the clips of another ingest run (ingest id {v}) than the \
+                 clips read with it ({id}): give the run folder it was made from, or run \
+                 `skillaug {stage}` again",
                 path.display()
             );
         }

@@ -1,5 +1,6 @@
 //! `stg_edges.parquet` and `stg_summary.parquet`: the Stitched Trajectory
-//! Graph (paper Section 4.4, Appendix B.4; reference §6).
+//! Graph (paper Section 4.4, Appendix B.4; reference code:
+//! Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/offline_state_search.py`).
 
 use super::read_util::{check_table, col, strs};
 use super::{schema_of, ColumnSpec};
