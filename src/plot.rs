@@ -281,20 +281,22 @@ pub fn write_png(chart: &Chart, path: &Path) -> Result<()> {
 }
 
 impl Canvas {
-    /// Encode as PNG at `path` (a temporary file, then renamed).
+    /// Encode as PNG at `path` (staged, then moved into place:
+    /// [`crate::table::io::Staged`]).
     fn write(&self, path: &Path) -> Result<()> {
-        let tmp = path.with_extension("png.tmp");
-        {
-            let f = std::fs::File::create(&tmp)
-                .with_context(|| format!("cannot write {}", tmp.display()))?;
+        let mut staged = crate::table::io::Staged::new();
+        staged.with_path(path, |tmp| {
+            let f = std::fs::File::create(tmp)
+                .with_context(|| format!("cannot write {}", path.display()))?;
             let mut enc = png::Encoder::new(std::io::BufWriter::new(f), W as u32, H as u32);
             enc.set_color(png::ColorType::Rgb);
             enc.set_depth(png::BitDepth::Eight);
             let mut wr = enc.write_header()?;
             wr.write_image_data(&self.px)?;
-        }
-        std::fs::rename(&tmp, path)?;
-        Ok(())
+            wr.finish()?;
+            Ok(())
+        })?;
+        staged.commit()
     }
 
     /// Text read bottom to top (turned a quarter left), its first letter's

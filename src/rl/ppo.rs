@@ -923,16 +923,13 @@ impl Agent {
                 .then(|| (self.vnorm.mean[0], self.vnorm.var[0], self.vnorm.count)),
         };
         let sp = Self::sidecar_path(path);
-        let tmp_w = tmp_name(path);
-        let tmp_s = tmp_name(&sp);
-        candle_core::safetensors::save(&map, &tmp_w)
-            .with_context(|| format!("writing {}", tmp_w.display()))?;
-        // candle's writer leaves its own temporary file's 0600
-        crate::table::io::set_fresh_file_mode(&tmp_w)?;
-        std::fs::write(&tmp_s, serde_json::to_vec_pretty(&side)?)
-            .with_context(|| format!("writing {}", tmp_s.display()))?;
-        std::fs::rename(&tmp_w, path)?;
-        std::fs::rename(&tmp_s, &sp)?;
+        let mut staged = crate::table::io::Staged::new();
+        staged.with_path(path, |tmp| {
+            candle_core::safetensors::save(&map, tmp)
+                .with_context(|| format!("writing {}", path.display()))
+        })?;
+        staged.text(&sp, &serde_json::to_string_pretty(&side)?)?;
+        staged.commit()?;
         Ok(())
     }
 
@@ -988,10 +985,4 @@ impl Agent {
         }
         Ok(agent)
     }
-}
-
-fn tmp_name(p: &Path) -> PathBuf {
-    let mut s = p.as_os_str().to_owned();
-    s.push(".tmp");
-    PathBuf::from(s)
 }

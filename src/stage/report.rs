@@ -4,7 +4,7 @@
 //! optionally written as Markdown. `--with-reference` adds the paper's rows
 //! (the paper's Tables 1, 2 and 5) beside ours.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -664,7 +664,6 @@ pub fn run(inputs: &[PathBuf], with_reference: bool, markdown_out: Option<&Path>
         println!("{n}");
     }
     if let Some(m) = markdown_out {
-        let tmp = m.with_extension("md.tmp");
         let mut md = markdown(&h, &b);
         md.push_str("\nCells: SR % / eps-NSR % / NR; TSR in %.\n");
         for n in &notes {
@@ -673,8 +672,9 @@ pub fn run(inputs: &[PathBuf], with_reference: bool, markdown_out: Option<&Path>
         if !notes.is_empty() {
             md.push('\n');
         }
-        std::fs::write(&tmp, md).with_context(|| format!("cannot write {}", tmp.display()))?;
-        std::fs::rename(&tmp, m)?;
+        let mut staged = crate::table::io::Staged::new();
+        staged.text(m, &md)?;
+        staged.commit()?;
         println!("wrote {}", m.display());
     }
     Ok(())

@@ -118,10 +118,9 @@ struct LockEntry {
 }
 
 fn write_lock(path: &Path, lock: &Lock) -> Result<()> {
-    let tmp = path.with_extension("json.tmp");
-    std::fs::write(&tmp, serde_json::to_vec_pretty(lock)?)?;
-    std::fs::rename(&tmp, path)?;
-    Ok(())
+    let mut staged = crate::table::io::Staged::new();
+    staged.text(path, &serde_json::to_string_pretty(lock)?)?;
+    staged.commit()
 }
 
 /// Run the experiment of `recipe` into `args.out`.
