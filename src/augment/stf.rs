@@ -76,7 +76,7 @@
 use super::ats::{start_frames, AtsWeights};
 use super::stg::Edge;
 use super::{n_masked, MaskRule};
-use crate::motion::{quat, MotionLib, State};
+use crate::motion::{quat, Kinematics, MotionLib, State};
 use crate::reward::{self, Align, Weights};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -419,20 +419,9 @@ pub fn perturb<R: Rng>(s: &State, eps: &Eps, noise: Noise, rng: &mut R) -> State
 /// `stored + FK(perturbed) - FK(original)`, so joint noise moves the bodies
 /// while the stored capture positions (which differ from the model's FK by
 /// 3-5 cm on BallPlay, `skillaug check-fk`) stay the baseline.
-pub fn refresh_bodies(original: &State, perturbed: &mut State, model: &crate::sim::mjcf::Model) {
-    use crate::sim::mjcf::forward_kinematics;
-    let before = forward_kinematics(
-        model,
-        original.root_pos,
-        original.root_rot,
-        &original.joint_rot,
-    );
-    let after = forward_kinematics(
-        model,
-        perturbed.root_pos,
-        perturbed.root_rot,
-        &perturbed.joint_rot,
-    );
+pub fn refresh_bodies(original: &State, perturbed: &mut State, model: &dyn Kinematics) {
+    let before = model.body_positions(original.root_pos, original.root_rot, &original.joint_rot);
+    let after = model.body_positions(perturbed.root_pos, perturbed.root_rot, &perturbed.joint_rot);
     for (k, b) in perturbed.body_pos.iter_mut().enumerate() {
         *b = original.body_pos[k] + (after[k] - before[k]);
     }
@@ -449,15 +438,15 @@ pub struct StfSampler<'a> {
     skill_clips: BTreeMap<String, Vec<usize>>,
     /// STG edges by target skill (only those whose clips exist).
     edges: BTreeMap<String, Vec<Edge>>,
-    /// The humanoid model, for forward kinematics of perturbed starts.
-    model: Option<crate::sim::mjcf::Model>,
+    /// The humanoid's forward kinematics, for perturbed starts.
+    model: Option<Box<dyn Kinematics>>,
 }
 
 impl<'a> StfSampler<'a> {
     /// Use `model`'s forward kinematics for the body positions of perturbed
     /// starts (see [`refresh_bodies`]).
-    pub fn with_model(mut self, model: crate::sim::mjcf::Model) -> Self {
-        self.model = Some(model);
+    pub fn with_model(mut self, model: impl Kinematics + 'static) -> Self {
+        self.model = Some(Box::new(model));
         self
     }
 
@@ -466,7 +455,7 @@ impl<'a> StfSampler<'a> {
     fn perturb_fk<R: Rng>(&self, s: &State, eps: &Eps, noise: Noise, rng: &mut R) -> State {
         let mut o = perturb(s, eps, noise, rng);
         if let Some(m) = &self.model {
-            refresh_bodies(s, &mut o, m);
+            refresh_bodies(s, &mut o, m.as_ref());
         }
         o
     }
@@ -760,9 +749,9 @@ impl<'a> StfSampler<'a> {
 mod tests {
     use super::super::ats::{Ats, AtsParams};
     use super::*;
+    use crate::motion::library::ClipRow;
     use crate::motion::{ClipFrames, Skeleton};
     use crate::reward::DatasetKind;
-    use crate::table::clips::ClipRow;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
 

@@ -4,7 +4,6 @@
 use super::clip::ClipFrames;
 use super::layout::Skeleton;
 use super::state::State;
-use crate::table::clips::ClipRow;
 use anyhow::{bail, Result};
 
 /// Slots of the skill condition c: a one-hot of the class id (64 in
@@ -80,6 +79,40 @@ pub fn check_classes<'a>(clips: impl IntoIterator<Item = (&'a str, &'a str, u32)
         );
     }
     Ok(())
+}
+
+/// One clip's description (a row of the `clips` table; `skillaug schema
+/// clips` gives each column's meaning and units).
+#[derive(Debug, Clone)]
+pub struct ClipRow {
+    /// Clip id: its index in the run folder's clip list.
+    pub clip_id: u32,
+    /// Clip name (the file stem).
+    pub name: String,
+    /// Dataset name.
+    pub dataset: String,
+    /// Skill.
+    pub skill: String,
+    /// Class id (the condition slot, below [`CONDITION_SLOTS`]).
+    pub class: u16,
+    /// Human label (DF, Layup, Place-Book, ...).
+    pub label: String,
+    /// Source path of the clip file.
+    pub source: String,
+    /// sha256 of the clip file, hex.
+    pub sha256: String,
+    /// Frames F.
+    pub frames: u32,
+    /// Valid (not missing) frames.
+    pub valid_frames: u32,
+    /// Frame rate, Hz.
+    pub fps: f32,
+    /// Tensor layout (D337, D409, D415).
+    pub layout: String,
+    /// Humanoid model name.
+    pub skeleton: String,
+    /// Names of the objects in the clip's state, in order.
+    pub objects: Vec<String>,
 }
 
 /// The ingested clips of one run folder.

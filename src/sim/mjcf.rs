@@ -593,6 +593,17 @@ fn geom(e: &Element) -> Result<Geom> {
     })
 }
 
+impl crate::motion::Kinematics for Model {
+    fn body_positions(
+        &self,
+        root_pos: [f32; 3],
+        root_rot: [f32; 4],
+        joint_rot: &[f32],
+    ) -> Vec<f32> {
+        forward_kinematics(self, root_pos, root_rot, joint_rot)
+    }
+}
+
 /// Forward kinematics with exp-map joints (docs/simulation.md): each non-root
 /// body's local rotation is `quat_from_expmap(its joint triple)`; returns
 /// world body positions `[B*3]`.

@@ -29,38 +29,9 @@ pub fn columns() -> Vec<ColumnSpec> {
     ]
 }
 
-/// One clip's row.
-#[derive(Debug, Clone)]
-pub struct ClipRow {
-    /// See [`columns`] for the meaning of each field.
-    pub clip_id: u32,
-    #[allow(missing_docs)]
-    pub name: String,
-    #[allow(missing_docs)]
-    pub dataset: String,
-    #[allow(missing_docs)]
-    pub skill: String,
-    #[allow(missing_docs)]
-    pub class: u16,
-    #[allow(missing_docs)]
-    pub label: String,
-    #[allow(missing_docs)]
-    pub source: String,
-    #[allow(missing_docs)]
-    pub sha256: String,
-    #[allow(missing_docs)]
-    pub frames: u32,
-    #[allow(missing_docs)]
-    pub valid_frames: u32,
-    #[allow(missing_docs)]
-    pub fps: f32,
-    #[allow(missing_docs)]
-    pub layout: String,
-    #[allow(missing_docs)]
-    pub skeleton: String,
-    #[allow(missing_docs)]
-    pub objects: Vec<String>,
-}
+/// One clip's row: the motion library's clip description
+/// ([`crate::motion::library::ClipRow`]), one field per column.
+pub use crate::motion::library::ClipRow;
 
 /// The record batch of `rows`.
 pub fn batch(rows: &[ClipRow]) -> Result<RecordBatch> {

@@ -273,7 +273,7 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
         let (lo, hi) = if nr {
             (f64::NAN, f64::NAN)
         } else {
-            crate::stage::eval::wilson(k[i] as usize, n[i] as usize)
+            crate::eval::wilson(k[i] as usize, n[i] as usize)
         };
         let cell: Vec<&TrialRow> = rows
             .iter()
