@@ -522,8 +522,8 @@ pub struct EnvStats {
     pub continuations: u64,
     /// Sum of their lengths (policy steps).
     pub length_sum: u64,
-    /// Starts by kind: rsi, rsi+noise, stg, stg+noise.
-    pub starts: [u64; 4],
+    /// Starts by kind.
+    pub starts: StartCounts,
     /// Sum of the masked-state counts N of the starts.
     pub n_masked_sum: u64,
 }
@@ -567,7 +567,48 @@ impl EnvStats {
 
     /// Total starts.
     pub fn start_count(&self) -> u64 {
-        self.starts.iter().sum()
+        self.starts.total()
+    }
+}
+
+/// Episode starts by kind (reference state initialisation or an STG edge,
+/// each with or without epsilon-neighbourhood noise).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StartCounts {
+    /// Plain reference states.
+    pub rsi: u64,
+    /// Reference states with neighbourhood noise.
+    pub rsi_noised: u64,
+    /// STG edges.
+    pub stg: u64,
+    /// STG edges with neighbourhood noise.
+    pub stg_noised: u64,
+}
+
+impl StartCounts {
+    /// All starts.
+    pub fn total(&self) -> u64 {
+        self.rsi + self.rsi_noised + self.stg + self.stg_noised
+    }
+
+    /// Fraction from the STG (NaN without starts).
+    pub fn stg_frac(&self) -> f64 {
+        (self.stg + self.stg_noised) as f64 / self.total() as f64
+    }
+
+    /// Fraction with neighbourhood noise (NaN without starts).
+    pub fn noised_frac(&self) -> f64 {
+        (self.rsi_noised + self.stg_noised) as f64 / self.total() as f64
+    }
+
+    /// Count one start.
+    pub fn add(&mut self, kind: StartKind, noised: bool) {
+        *match (kind, noised) {
+            (StartKind::Rsi, false) => &mut self.rsi,
+            (StartKind::Rsi, true) => &mut self.rsi_noised,
+            (StartKind::Stg, false) => &mut self.stg,
+            (StartKind::Stg, true) => &mut self.stg_noised,
+        } += 1;
     }
 }
 
@@ -1171,13 +1212,7 @@ impl<'a> HumanoidEnv<'a> {
         if let Some(c) = self.ctx.cfg.condition {
             t.condition = c;
         }
-        let k = match (t.start_kind, t.noised) {
-            (StartKind::Rsi, false) => 0,
-            (StartKind::Rsi, true) => 1,
-            (StartKind::Stg, false) => 2,
-            (StartKind::Stg, true) => 3,
-        };
-        self.stats.starts[k] += 1;
+        self.stats.starts.add(t.start_kind, t.noised);
         self.stats.n_masked_sum += t.n_masked as u64;
         Ok((t, key))
     }

@@ -42,7 +42,7 @@ use crate::rl::{collect, Agent, EpisodeTracker, PpoConfig, StepResult, VecEnv};
 use crate::sim::mjcf::Model;
 use crate::sim::{objects, SimOptions};
 use crate::stage::sample_stf::StfConfig;
-use crate::table::train::{MetricRow, METRICS};
+use crate::table::train::{MetricRow, Metrics};
 use crate::table::{self, train as mtable};
 use anyhow::{bail, ensure, Context, Result};
 use rand::SeedableRng;
@@ -959,46 +959,43 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
         } else {
             returns.iter().sum::<f64>() / returns.len() as f64
         };
-        // NaN when no episode started in the iteration
-        let starts = st.start_count() as f64;
-        let values = vec![
-            st.mean_reward(),
-            st.mean_sm(),
-            st.fall_rate(),
-            st.episodes as f64,
-            st.mean_length(),
-            mean_return,
-            st.masked as f64 / st.steps.max(1) as f64,
-            (st.starts[2] + st.starts[3]) as f64 / starts,
-            (st.starts[1] + st.starts[3]) as f64 / starts,
-            st.n_masked_sum as f64 / starts,
-            up.policy_loss,
-            up.value_loss,
-            up.bounds_loss,
-            up.clip_frac,
-            up.approx_kl,
-            up.lr,
-            st.mean_sm_factor(0),
-            st.mean_sm_factor(1),
-            st.mean_sm_factor(2),
-            st.mean_sm_factor(3),
-            st.lost_rate(),
-            st.lost_object_rate(),
-            if st.episodes > 0 {
-                st.continuations as f64 / st.episodes as f64
-            } else {
-                f64::NAN
-            },
-            (n * steps) as f64 / total_s,
-            sim_s,
-            collect_s - sim_s,
-            update_s,
-        ];
-        debug_assert_eq!(values.len(), METRICS.len());
+        // start fractions are NaN when no episode started in the iteration
         metrics.push(MetricRow {
             iteration,
             samples,
-            values,
+            metrics: Metrics {
+                mean_reward: st.mean_reward(),
+                mean_sm_reward: st.mean_sm(),
+                fall_rate: st.fall_rate(),
+                episodes: st.episodes as f64,
+                mean_episode_length: st.mean_length(),
+                mean_return,
+                masked_frac: st.masked as f64 / st.steps.max(1) as f64,
+                stg_start_frac: st.starts.stg_frac(),
+                noised_start_frac: st.starts.noised_frac(),
+                mean_n_masked: st.n_masked_sum as f64 / st.start_count() as f64,
+                policy_loss: up.policy_loss,
+                value_loss: up.value_loss,
+                bounds_loss: up.bounds_loss,
+                clip_frac: up.clip_frac,
+                approx_kl: up.approx_kl,
+                lr: up.lr,
+                mean_sm_body: st.mean_sm_factor(0),
+                mean_sm_object: st.mean_sm_factor(1),
+                mean_sm_rel: st.mean_sm_factor(2),
+                mean_sm_contact: st.mean_sm_factor(3),
+                lost_rate: st.lost_rate(),
+                lost_object_rate: st.lost_object_rate(),
+                continued_frac: if st.episodes > 0 {
+                    st.continuations as f64 / st.episodes as f64
+                } else {
+                    f64::NAN
+                },
+                samples_per_s: (n * steps) as f64 / total_s,
+                sim_s,
+                act_s: collect_s - sim_s,
+                update_s,
+            },
         });
         bar.set_position(samples.min(cfg.samples));
         bar.set_message(format!(
