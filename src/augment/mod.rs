@@ -5,6 +5,7 @@
 
 pub mod ats;
 pub mod seam;
+pub mod settings;
 pub mod stf;
 pub mod stg;
 

@@ -17,6 +17,27 @@ pub fn wilson(k: usize, n: usize) -> (f64, f64) {
     ((c - h).clamp(0.0, p), (c + h).clamp(p, 1.0))
 }
 
+/// The label of a policy from its switches: "SM", "DM+eNSI", "SM+STG+STF+ATS+HE", ...
+pub fn method_label(t: &crate::rl::config::TrainConfig) -> String {
+    let mut s = match t.method {
+        crate::rl::humanoid::Method::Sm => "SM".to_string(),
+        crate::rl::humanoid::Method::Dm => "DM".to_string(),
+    };
+    for (on, name) in [
+        (t.nsi && !t.stf, "eNSI"),
+        (t.stg, "STG"),
+        (t.stf, "STF"),
+        (t.ats, "ATS"),
+        (t.he, "HE"),
+    ] {
+        if on {
+            s.push('+');
+            s.push_str(name);
+        }
+    }
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -47,6 +47,7 @@
 //! fields written, are lighter than either.
 
 use crate::motion::{library::CONDITION_SLOTS, Skeleton};
+use crate::rl::config::PolicyMeta;
 use crate::rl::humanoid::{fingertips, obs_dim};
 use crate::rl::norm::{NORM_CLIP, NORM_EPS};
 use crate::rl::Agent;
@@ -54,7 +55,6 @@ use crate::rl::Agent;
 use crate::rl::RunningNorm;
 #[cfg(doc)]
 use crate::sim::World;
-use crate::stage::train::PolicyMeta;
 use anyhow::{bail, ensure, Context, Result};
 use prost::Message;
 use std::path::Path;
@@ -699,7 +699,7 @@ pub fn policy_model(meta: &PolicyMeta, agent: &Agent) -> Result<ModelProto> {
         doc_string: Some(format!(
             "skillaug policy ({}, dataset {}, skills {}): deterministic action of a raw observation; \
              see metadata_props",
-            crate::stage::eval::method_label(&meta.train),
+            crate::eval::method_label(&meta.train),
             meta.dataset,
             meta.skills.join(", ")
         )),
@@ -752,7 +752,7 @@ fn metadata(
         ("clips", json(serde_json::json!(meta.clips))),
         ("clip_classes", serde_json::Value::Object(classes).to_string()),
         ("objects", json(serde_json::json!(meta.objects))),
-        ("method", crate::stage::eval::method_label(&meta.train)),
+        ("method", crate::eval::method_label(&meta.train)),
         ("iterations", meta.iterations.to_string()),
         ("samples", meta.samples.to_string()),
         ("hidden", json(serde_json::json!(cfg.hidden))),
@@ -829,9 +829,9 @@ pub fn policy_to_onnx(policy_dir: &Path) -> Result<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::augment::settings::StfConfig;
+    use crate::rl::config::TrainConfig;
     use crate::rl::PpoConfig;
-    use crate::stage::sample_stf::StfConfig;
-    use crate::stage::train::TrainConfig;
     use candle_core::Device;
 
     fn meta(sk: Skeleton, objects: &[&str], he: bool, od: usize) -> PolicyMeta {

@@ -15,6 +15,7 @@
 //! timeouts bootstrapped from the value of the episode's last state while
 //! terminations are not.
 
+pub mod config;
 pub mod humanoid;
 pub mod norm;
 pub mod pointmass;

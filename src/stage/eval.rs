@@ -106,26 +106,7 @@ pub fn tsr_pairs(kind: DatasetKind, skills: &[String]) -> Vec<(String, String)> 
         .collect()
 }
 
-/// The label of a policy from its switches: "SM", "DM+eNSI", "SM+STG+STF+ATS+HE", ...
-pub fn method_label(t: &TrainConfig) -> String {
-    let mut s = match t.method {
-        crate::rl::humanoid::Method::Sm => "SM".to_string(),
-        crate::rl::humanoid::Method::Dm => "DM".to_string(),
-    };
-    for (on, name) in [
-        (t.nsi && !t.stf, "eNSI"),
-        (t.stg, "STG"),
-        (t.stf, "STF"),
-        (t.ats, "ATS"),
-        (t.he, "HE"),
-    ] {
-        if on {
-            s.push('+');
-            s.push_str(name);
-        }
-    }
-    s
-}
+pub use crate::eval::method_label;
 
 /// Target ball height of a shot: the reference ball height at the highest
 /// frame of the skill's first clip (the `layup_target` of

@@ -1,0 +1,345 @@
+//! The settings of the `[train]` recipe table ([`TrainConfig`], with the
+//! size presets and the PPO keys) and the description of a trained policy
+//! ([`PolicyMeta`], `policy.meta.json`), which training writes and
+//! evaluation and export read.
+
+use crate::augment::ats::Update;
+use crate::augment::settings::StfConfig;
+use crate::reward::{ContactDetect, ContactRule, RootRot};
+use crate::rl::humanoid::{MaskedReward, Method};
+use crate::rl::PpoConfig;
+use anyhow::Result;
+use serde::{Deserialize, Serialize};
+
+/// Size presets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Preset {
+    /// Sized for two CPU cores.
+    #[default]
+    Cpu,
+    /// The paper's Table 6.
+    Paper,
+}
+
+/// Settings of the `[train]` recipe table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// "sm" or "dm".
+    pub method: Method,
+    /// Skills to train (empty = every skill of the library).
+    pub skills: Vec<String>,
+    /// ε-NSI baseline: neighbourhood starts without the connection rule.
+    pub nsi: bool,
+    /// STG starts (needs `stg_edges.parquet`).
+    pub stg: bool,
+    /// STF starts: neighbourhood starts connected with masked states.
+    pub stf: bool,
+    /// Adaptive Trajectory Sampling.
+    pub ats: bool,
+    /// History encoder embedding in the observation.
+    pub he: bool,
+    /// Folder with `he.safetensors` ("" = the input folder).
+    pub he_dir: String,
+    /// p_e when `stg` (Table 7).
+    pub p_e: f64,
+    /// p_n when `nsi` or `stf` (Table 7).
+    pub p_n: f64,
+    /// Size preset; the keys below override it.
+    pub preset: Preset,
+    /// Environments (preset: 128 cpu, 2048 paper).
+    pub num_envs: Option<usize>,
+    /// Policy steps per environment per iteration (32).
+    pub horizon: Option<usize>,
+    /// Total samples to collect.
+    pub samples: u64,
+    /// Training episode length T, policy steps (60).
+    pub episode_length: usize,
+    /// Early termination on a fall.
+    pub early_termination: bool,
+    /// Fall threshold, m.
+    pub fall_height: f32,
+    /// End an episode when an unmasked SM reward is below this (0 = off).
+    pub collapse_reward: f64,
+    /// "clip-mean" (the reference code's rule, Ingrid789/SkillMimic-V2
+    /// `skillmimic/env/tasks/skillmimic1_rand.py`) or "zero".
+    pub masked_reward: MaskedReward,
+    /// SM contact graph: "paper" (three pairs) or "reference".
+    pub contacts: ContactRule,
+    /// How the simulation detects the ball-hands contact: "proximity"
+    /// (a hand within `contact_radius` of the ball, what the data's flag
+    /// measures), "touch" (touching pairs at any substep) or "touch-last".
+    pub contact_detect: ContactDetect,
+    /// Radius of the proximity contact, m.
+    pub contact_radius: f64,
+    /// Root rotation term: "nearest" (exp-map branch nearest the
+    /// reference's) or "raw" (reference code).
+    pub root_rot: RootRot,
+    /// Continue a reference that reaches its clip's end from the most
+    /// similar frame of the skill (the seam), anchored to the character,
+    /// so every episode lasts `episode_length` steps unless it terminates.
+    pub continuation: bool,
+    /// Shortest continued segment, s.
+    pub seam_min_loop_s: f64,
+    /// Masked steps at a seam at least (Eq. 20 alone gives N = 0 for every
+    /// beta > 0.1, so the reference jumps to the seam frame at once).
+    pub seam_masked_min: u32,
+    /// Terminate when the mean distance of the 18 key points to the
+    /// reference exceeds this, m (0 = off). 0.5 m is the failure rule of
+    /// UHC and PHC (Luo et al. 2023, Section 4).
+    pub term_key_distance: f64,
+    /// Terminate when the ball is farther than this from the root while
+    /// the reference's is not, m (0 = off); 1.5 m is the dribble success
+    /// rule's bound (Ingrid789/SkillMimic-V2 `skillmimic/metric/`).
+    pub term_object_distance: f64,
+    /// Fall heights of single skills replacing `fall_height`, m.
+    pub fall_height_by_skill: std::collections::BTreeMap<String, f32>,
+    /// Warm start: epochs of behaviour cloning of the policy mean onto the
+    /// next reference frame's joint rotations before PPO (0 = off; see
+    /// [`HumanoidEnv::warm_start_data`]; on by default, docs/training.md).
+    pub warm_start_epochs: usize,
+    /// ε-perturbed copies of each reference state in the warm-start data.
+    pub warm_start_copies: usize,
+    /// Adam learning rate of the warm start.
+    pub warm_start_lr: f64,
+    /// First iterations that update only the critic (0 = none).
+    pub critic_warmup_iters: u64,
+    /// The reference code's hidden smoothness factor in the SM reward.
+    pub smoothness: bool,
+    /// ATS statistic update: "mean" or "halving" (reference).
+    pub ats_update: Update,
+    /// Iterations between checkpoints.
+    pub checkpoint_every: u64,
+    /// PPO settings; `hidden`, `lr`, `minibatch` come from the preset
+    /// unless given here.
+    pub ppo: PpoOverrides,
+}
+
+/// PPO keys of `[train.ppo]`; unset keys take the preset's value or the
+/// SkillMimic default.
+#[derive(Clone, Debug, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PpoOverrides {
+    /// Hidden sizes of both networks.
+    pub hidden: Option<Vec<usize>>,
+    /// Adam learning rate.
+    pub lr: Option<f64>,
+    /// Minibatch size.
+    pub minibatch: Option<usize>,
+    /// Mini-epochs.
+    pub epochs: Option<usize>,
+    /// Action noise (std unless `sigma_is_variance`).
+    pub sigma: Option<f64>,
+    /// Read `sigma` as a variance (the paper's wording).
+    pub sigma_is_variance: Option<bool>,
+    /// Discount.
+    pub gamma: Option<f64>,
+    /// GAE λ.
+    pub lambda: Option<f64>,
+    /// Ratio clip.
+    pub clip: Option<f64>,
+    /// Value-loss weight.
+    pub critic_coef: Option<f64>,
+    /// Bounds-loss weight.
+    pub bounds_coef: Option<f64>,
+    /// Merge observation statistics after the update (see
+    /// [`PpoConfig::norm_after_update`]).
+    pub norm_after_update: Option<bool>,
+    /// Standardised value targets ([`PpoConfig::normalize_value`]).
+    pub normalize_value: Option<bool>,
+    /// Adaptive learning rate around this KL ([`PpoConfig::kl_threshold`]).
+    pub kl_threshold: Option<f64>,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        TrainConfig {
+            method: Method::Sm,
+            skills: Vec::new(),
+            nsi: false,
+            stg: false,
+            stf: false,
+            ats: false,
+            he: false,
+            he_dir: String::new(),
+            p_e: 0.1,
+            p_n: 0.1,
+            preset: Preset::Cpu,
+            num_envs: None,
+            horizon: None,
+            samples: 2_000_000,
+            episode_length: 60,
+            early_termination: true,
+            fall_height: 0.3,
+            collapse_reward: 0.0,
+            masked_reward: MaskedReward::ClipMean,
+            contacts: ContactRule::Paper,
+            contact_detect: ContactDetect::Proximity,
+            contact_radius: 0.2,
+            root_rot: RootRot::Nearest,
+            continuation: true,
+            seam_min_loop_s: 0.5,
+            seam_masked_min: 0,
+            term_key_distance: 0.5,
+            term_object_distance: 1.5,
+            fall_height_by_skill: Default::default(),
+            warm_start_epochs: 50,
+            warm_start_copies: 4,
+            warm_start_lr: 1e-3,
+            critic_warmup_iters: 5,
+            smoothness: false,
+            ats_update: Update::Mean,
+            checkpoint_every: 10,
+            ppo: PpoOverrides::default(),
+        }
+    }
+}
+
+impl TrainConfig {
+    /// Environments per iteration.
+    pub fn envs(&self) -> usize {
+        self.num_envs.unwrap_or(match self.preset {
+            Preset::Cpu => 128,
+            Preset::Paper => 2048,
+        })
+    }
+
+    /// Steps per environment per iteration.
+    pub fn steps(&self) -> usize {
+        self.horizon.unwrap_or(32)
+    }
+
+    /// The PPO configuration: preset, then overrides.
+    pub fn ppo_config(&self) -> PpoConfig {
+        let mut c = PpoConfig::default();
+        if self.preset == Preset::Cpu {
+            c.hidden = vec![256, 256];
+            c.lr = 1e-4;
+            c.minibatch = 2048;
+        }
+        let o = &self.ppo;
+        macro_rules! set {
+            ($($f:ident),*) => {$(if let Some(v) = &o.$f { c.$f = v.clone(); })*};
+        }
+        set!(
+            hidden,
+            lr,
+            minibatch,
+            epochs,
+            sigma,
+            sigma_is_variance,
+            gamma,
+            lambda,
+            clip,
+            critic_coef,
+            bounds_coef,
+            norm_after_update,
+            normalize_value
+        );
+        if o.kl_threshold.is_some() {
+            c.kl_threshold = o.kl_threshold;
+        }
+        c
+    }
+}
+
+impl crate::config::Validate for TrainConfig {
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.range("p_e", self.p_e, 0.0, 1.0)?;
+        c.range("p_n", self.p_n, 0.0, 1.0)?;
+        c.count("num_envs", self.envs() as u64, 1, 1 << 20)?;
+        c.count("horizon", self.steps() as u64, 1, 1 << 20)?;
+        c.count("samples", self.samples, 1, u64::MAX)?;
+        c.count("episode_length", self.episode_length as u64, 1, 1 << 24)?;
+        c.finite("fall_height", self.fall_height as f64)?;
+        c.finite("collapse_reward", self.collapse_reward)?;
+        c.positive("contact_radius", self.contact_radius)?;
+        c.non_negative("seam_min_loop_s", self.seam_min_loop_s)?;
+        c.count("seam_masked_min", self.seam_masked_min as u64, 0, 10_000)?;
+        c.non_negative("term_key_distance", self.term_key_distance)?;
+        c.non_negative("term_object_distance", self.term_object_distance)?;
+        for (skill, h) in &self.fall_height_by_skill {
+            c.finite(&format!("fall_height_by_skill.{skill}"), *h as f64)?;
+        }
+        c.count(
+            "warm_start_epochs",
+            self.warm_start_epochs as u64,
+            0,
+            1 << 20,
+        )?;
+        c.count("warm_start_copies", self.warm_start_copies as u64, 0, 1000)?;
+        c.positive("warm_start_lr", self.warm_start_lr)?;
+        c.count("checkpoint_every", self.checkpoint_every, 1, u64::MAX)?;
+        let o = &self.ppo;
+        let p = crate::config::Check::new("train.ppo");
+        if let Some(h) = &o.hidden {
+            p.holds(!h.is_empty() && h.iter().all(|&n| n > 0), || {
+                format!("hidden = {h:?}: needs at least one layer, every size > 0")
+            })?;
+        }
+        for (k, v) in [
+            ("lr", o.lr),
+            ("sigma", o.sigma),
+            ("clip", o.clip),
+            ("kl_threshold", o.kl_threshold),
+        ] {
+            if let Some(v) = v {
+                p.positive(k, v)?;
+            }
+        }
+        for (k, v) in [
+            ("critic_coef", o.critic_coef),
+            ("bounds_coef", o.bounds_coef),
+        ] {
+            if let Some(v) = v {
+                p.non_negative(k, v)?;
+            }
+        }
+        for (k, v) in [("gamma", o.gamma), ("lambda", o.lambda)] {
+            if let Some(v) = v {
+                p.range(k, v, 0.0, 1.0)?;
+            }
+        }
+        if let Some(n) = o.minibatch {
+            p.count("minibatch", n as u64, 1, 1 << 30)?;
+        }
+        if let Some(n) = o.epochs {
+            p.count("epochs", n as u64, 1, 1000)?;
+        }
+        Ok(())
+    }
+}
+
+/// What a trained policy was trained on (`policy.meta.json`), so that
+/// evaluation can refuse a library, skill set or encoder that does not match.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PolicyMeta {
+    /// Layout version.
+    pub format: u32,
+    /// Dataset of the clips.
+    pub dataset: String,
+    /// Skeleton.
+    pub skeleton: String,
+    /// Trained skills, in clip order.
+    pub skills: Vec<String>,
+    /// Trained clip names.
+    pub clips: Vec<String>,
+    /// Objects of the worlds.
+    pub objects: Vec<String>,
+    /// Observation size.
+    pub obs_dim: usize,
+    /// Action size.
+    pub act_dim: usize,
+    /// Folder of the history encoder (None: trained without).
+    pub he_dir: Option<String>,
+    /// The training settings.
+    pub train: TrainConfig,
+    /// The STF settings (ε of the neighbourhood evaluation).
+    pub stf: StfConfig,
+    /// Iterations trained.
+    pub iterations: u64,
+    /// Samples trained.
+    pub samples: u64,
+}
