@@ -18,6 +18,7 @@ pub mod nn;
 pub mod plot;
 pub mod progress;
 pub mod pt;
+pub mod random;
 pub mod reward;
 pub mod rl;
 pub mod sim;

@@ -324,12 +324,8 @@ impl Trajectory {
 fn draw<R: Rng>(e: f64, noise: Noise, rng: &mut R) -> f64 {
     match noise {
         Noise::Uniform => e * (2.0 * rng.random::<f64>() - 1.0),
-        Noise::Gaussian => {
-            // Box-Muller, one normal per two uniforms; u1 in (0, 1].
-            let u1 = 1.0 - rng.random::<f64>();
-            let u2 = rng.random::<f64>();
-            e * (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-        }
+        // one normal per two uniforms (the pair's second is not used)
+        Noise::Gaussian => e * crate::random::normal_pair(rng).0,
     }
 }
 

@@ -467,15 +467,6 @@ pub fn gae(inp: &GaeInput<'_>, gamma: f64, lambda: f64) -> (Vec<f32>, Vec<f32>) 
     (adv, ret)
 }
 
-/// A standard normal draw (Box–Muller) from the caller's generator.
-fn normal_pair<R: Rng + ?Sized>(rng: &mut R) -> (f64, f64) {
-    let u1: f64 = 1.0 - rng.random::<f64>(); // (0, 1]
-    let u2: f64 = rng.random::<f64>();
-    let r = (-2.0 * u1.ln()).sqrt();
-    let th = std::f64::consts::TAU * u2;
-    (r * th.cos(), r * th.sin())
-}
-
 /// Scalars of a checkpoint (the JSON sidecar).
 #[derive(Serialize, Deserialize)]
 struct Sidecar {
@@ -659,7 +650,7 @@ impl Agent {
         let mut z = vec![0f64; mu.len()];
         if !deterministic {
             for pair in z.chunks_mut(2) {
-                let (a, b) = normal_pair(rng);
+                let (a, b) = crate::random::normal_pair(rng);
                 pair[0] = a;
                 if pair.len() > 1 {
                     pair[1] = b;
