@@ -941,14 +941,21 @@ impl Agent {
         let mut agent = Agent::new(side.obs_dim, side.act_dim, &side.config, 0, dev)?;
         let get = |k: &str| {
             map.get(k)
-                .with_context(|| format!("checkpoint: `{k}` missing"))
+                .with_context(|| format!("{}: tensor `{k}` missing", path.display()))
         };
         for (k, (name, var)) in agent.vars.iter().enumerate() {
             let w = get(name)?;
             ensure!(
                 w.dims() == var.dims(),
-                "checkpoint: `{name}` shape {:?}",
-                w.dims()
+                "{}: tensor `{name}` has shape {:?}, but {} (obs_dim {}, act_dim {}, hidden {:?}) \
+                 needs {:?}",
+                path.display(),
+                w.dims(),
+                sp.display(),
+                side.obs_dim,
+                side.act_dim,
+                side.config.hidden,
+                var.dims()
             );
             var.set(w)?;
             agent.adam.m[k] = get(&format!("adam.m.{name}"))?.clone();

@@ -253,7 +253,8 @@ pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
         feature_layout: he::layout_text(lib.skeleton, n_objects),
         mean,
         std,
-        ingest_id: Some(table::ingest_id(&common.input_dir().join("clips.parquet"))?),
+        ingest_id: Some(table::ingest_id(&common.input_dir().join("clips.parquet"))?)
+            .filter(|id| !id.is_empty()),
     };
     let feats = he::clip_features(&lib, &cfg);
     let samples = samples(&feats);

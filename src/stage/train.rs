@@ -482,7 +482,12 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
         // another folder (`he_dir`) is the user's choice
         if cfg.he_dir.is_empty() {
             let id = table::ingest_id(&common.input_dir().join("clips.parquet"))?;
-            if let Some(e) = enc.cfg.ingest_id.as_ref().filter(|e| **e != id) {
+            if let Some(e) = enc
+                .cfg
+                .ingest_id
+                .as_ref()
+                .filter(|e| !id.is_empty() && **e != id)
+            {
                 bail!(
                     "{}/he.config.json: the history encoder was pre-trained on other clips \
                      (ingest id {e}) than {} holds now ({id}): run `skillaug pretrain-he` again",

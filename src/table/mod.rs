@@ -118,39 +118,36 @@ impl Meta {
 /// The identity of one ingest run: a hash of the resolved settings and
 /// the source files' hashes that `ingest` records in both of its tables.
 /// Later stages record it in theirs (`skillaug.ingest_id`) so that a reader
-/// can tell tables of two different runs apart.
+/// can tell tables of two different runs apart. Empty when the table lacks
+/// those keys (rewritten by another tool): then nothing can be checked.
 ///
 /// # Errors
-/// The table cannot be read, or lacks the two keys.
+/// The table cannot be read.
 pub fn ingest_id(table: &std::path::Path) -> anyhow::Result<String> {
     let meta = io::read_metadata(table)?;
     let get = |k: &str| {
         meta.iter()
             .find(|(key, _)| key == k)
             .map(|(_, v)| v.as_str())
-            .ok_or_else(|| {
-                anyhow::anyhow!(
-                    "{}: no metadata key `{k}`: not written by `skillaug ingest`",
-                    table.display()
-                )
-            })
     };
-    Ok(crate::config::hash_text(&format!(
-        "{}\n{}",
-        get("skillaug.config_hash")?,
-        get("skillaug.source_sha256")?
-    )))
+    Ok(
+        match (get("skillaug.config_hash"), get("skillaug.source_sha256")) {
+            (Some(c), Some(s)) => crate::config::hash_text(&format!("{c}\n{s}")),
+            _ => String::new(),
+        },
+    )
 }
 
 /// Check that the table at `path` (metadata `skillaug.ingest_id`, when it
-/// has the key) was made from the clips of ingest run `id`.
+/// has the key) was made from the clips of ingest run `id` (empty: not
+/// known, nothing to check).
 ///
 /// # Errors
 /// Names the table, the two ids and what to re-run.
 pub fn check_ingest_id(path: &std::path::Path, id: &str, stage: &str) -> anyhow::Result<()> {
     let meta = io::read_metadata(path)?;
     if let Some((_, v)) = meta.iter().find(|(k, _)| k == "skillaug.ingest_id") {
-        if v != id {
+        if !v.is_empty() && !id.is_empty() && v != id {
             anyhow::bail!(
                 "{} was made from the clips of another ingest run (ingest id {v}) than the \
                  clips read with it ({id}): give the run folder it was made from, or run \
@@ -182,7 +179,7 @@ pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::Moti
     let fp = run.join("frames.parquet");
     if fp.is_file() {
         let (a, b) = (ingest_id(&cp)?, ingest_id(&fp)?);
-        if a != b {
+        if !a.is_empty() && !b.is_empty() && a != b {
             anyhow::bail!(
                 "{} and {} come from two different ingest runs (ingest ids {a} and {b}): two \
                  runs wrote into one folder; ingest again",
