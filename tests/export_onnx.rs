@@ -9,11 +9,9 @@ mod common;
 
 use common::*;
 use rand::SeedableRng;
-use skillaug::cli::StageArgs;
 use skillaug::rl::humanoid::HeRuntime;
 use skillaug::rl::{Agent, VecEnv};
 use skillaug::stage::train::{environment, setup, PolicyMeta};
-use skillaug::stage::Common;
 use std::path::Path;
 
 /// The agreement asked of ONNX Runtime and skillaug's agent.
@@ -59,18 +57,7 @@ fn export(pol: &Path, out: &Path) -> String {
 fn record(run: &Path, pol: &Path, envs: usize, steps: usize) -> (Vec<f32>, Vec<f32>, usize, usize) {
     let meta: PolicyMeta =
         serde_json::from_slice(&std::fs::read(pol.join("policy.meta.json")).unwrap()).unwrap();
-    let common = Common::new(StageArgs {
-        out: pol.join("unused"),
-        dataset: None,
-        from: Some(run.to_path_buf()),
-        data_root: Some(data_root()),
-        recipe: None,
-        set: Vec::new(),
-        seed: 0,
-        threads: None,
-        quiet: true,
-    })
-    .unwrap();
+    let common = common_for(run, pol.join("unused"));
     let mut cfg = meta.train.clone();
     cfg.skills = meta.skills.clone();
     cfg.stg = false;

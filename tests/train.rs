@@ -8,12 +8,10 @@ use arrow::array::AsArray;
 use arrow::datatypes::Float64Type;
 use common::*;
 use rand::SeedableRng;
-use skillaug::cli::StageArgs;
 use skillaug::rl::humanoid::{obs_dim, write_observation};
 use skillaug::rl::VecEnv;
 use skillaug::stage::train::{environment, setup, TrainConfig};
-use skillaug::stage::Common;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// With [`TINY_TRAIN`]: two mini-epochs, a checkpoint every iteration, two threads.
 const TINY: &[&str] = &[
@@ -306,21 +304,6 @@ fn the_history_encoder_adds_three_observation_dimensions() {
     .filter(|a| *a != "-q")
     .collect::<Vec<_>>());
     assert!(text.contains("obs 902 act 156"), "{text}");
-}
-
-fn common_for(run: &Path, out: PathBuf) -> Common {
-    Common::new(StageArgs {
-        out,
-        dataset: None,
-        from: Some(run.to_path_buf()),
-        data_root: Some(data_root()),
-        recipe: None,
-        set: Vec::new(),
-        seed: 0,
-        threads: None,
-        quiet: true,
-    })
-    .unwrap()
 }
 
 #[test]

@@ -293,3 +293,20 @@ pub fn sample_masked_stf(from: &str) {
         "sample-stf.trajectories=20",
     ]);
 }
+
+/// The stage context of a library call on run folder `run` writing to
+/// `out`: no recipe, no overrides, seed 0, the shipped data root.
+pub fn common_for(run: &Path, out: PathBuf) -> skillaug::stage::Common {
+    skillaug::stage::Common::new(skillaug::cli::StageArgs {
+        out,
+        dataset: None,
+        from: Some(run.to_path_buf()),
+        data_root: Some(data_root()),
+        recipe: None,
+        set: Vec::new(),
+        seed: 0,
+        threads: None,
+        quiet: true,
+    })
+    .unwrap()
+}
