@@ -8,261 +8,46 @@ use anyhow::{bail, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// The paper's cells: (method, per-skill (skill, SR %, εNSR %, NR), TSR
-/// ((from, to), %)).
+/// One method's row of a paper table: per skill (skill, SR %, εNSR %, NR),
+/// per transition (from, to, TSR %), and the Avg. cells as printed.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PaperRow {
     /// Method as the paper names it.
-    pub method: &'static str,
+    pub method: String,
     /// Per skill: (skill id, SR %, εNSR %, NR).
-    pub cells: &'static [(&'static str, f64, f64, f64)],
+    pub cells: Vec<(String, f64, f64, f64)>,
     /// Transitions: (from, to, TSR %).
-    pub tsr: &'static [(&'static str, &'static str, f64)],
-    /// The paper's Avg. cell (SR, εNSR, NR) and TSR Avg., as printed (NaN
-    /// where the table prints none: Table 5).
-    pub avg: (f64, f64, f64, Option<f64>),
+    pub tsr: Vec<(String, String, f64)>,
+    /// The paper's Avg. cell (SR, εNSR, NR), as printed (NaN where the
+    /// table prints none: Table 5).
+    pub avg: (f64, f64, f64),
+    /// The paper's TSR Avg., where it prints one.
+    #[serde(default)]
+    pub tsr_avg: Option<f64>,
 }
 
-/// Table 1 (BallPlay).
-pub const TABLE1: &[PaperRow] = &[
-    PaperRow {
-        method: "DM",
-        cells: &[
-            ("run", 89.2, 38.5, 0.09),
-            ("lrun", 70.4, 24.5, 0.10),
-            ("rrun", 87.5, 26.8, 0.06),
-            ("layup", 0.0, 0.0, 0.18),
-            ("shot", 0.0, 0.0, 0.12),
-        ],
-        tsr: &[
-            ("lrun", "rrun", 1.6),
-            ("run", "rrun", 17.1),
-            ("run", "shot", 0.0),
-            ("layup", "run", 50.2),
-        ],
-        avg: (49.4, 18.0, 0.11, Some(17.2)),
-    },
-    PaperRow {
-        method: "DM+eNSI",
-        cells: &[
-            ("run", 96.2, 56.3, 0.10),
-            ("lrun", 76.5, 38.7, 0.11),
-            ("rrun", 81.8, 29.5, 0.06),
-            ("layup", 1.0, 0.5, 0.20),
-            ("shot", 0.0, 0.0, 0.11),
-        ],
-        tsr: &[
-            ("lrun", "rrun", 2.9),
-            ("run", "rrun", 14.0),
-            ("run", "shot", 0.0),
-            ("layup", "run", 46.1),
-        ],
-        avg: (51.1, 25.0, 0.12, Some(15.8)),
-    },
-    PaperRow {
-        method: "DM+Ours",
-        cells: &[
-            ("run", 88.6, 53.8, 0.08),
-            ("lrun", 89.4, 55.9, 0.08),
-            ("rrun", 92.6, 54.2, 0.10),
-            ("layup", 99.1, 50.9, 0.12),
-            ("shot", 0.0, 0.0, 0.06),
-        ],
-        tsr: &[
-            ("lrun", "rrun", 93.6),
-            ("run", "rrun", 87.0),
-            ("run", "shot", 0.0),
-            ("layup", "run", 72.1),
-        ],
-        avg: (73.9, 43.0, 0.088, Some(63.2)),
-    },
-    PaperRow {
-        method: "SM",
-        cells: &[
-            ("run", 97.3, 40.3, 0.64),
-            ("lrun", 71.9, 29.4, 0.49),
-            ("rrun", 97.8, 22.9, 0.35),
-            ("layup", 0.0, 0.0, 0.64),
-            ("shot", 2.9, 1.3, 0.48),
-        ],
-        tsr: &[
-            ("lrun", "rrun", 1.4),
-            ("run", "rrun", 28.0),
-            ("run", "shot", 0.8),
-            ("layup", "run", 31.2),
-        ],
-        avg: (54.0, 18.8, 0.52, Some(15.4)),
-    },
-    PaperRow {
-        method: "SM+eNSI",
-        cells: &[
-            ("run", 98.1, 61.2, 0.38),
-            ("lrun", 98.7, 59.8, 0.51),
-            ("rrun", 97.1, 44.9, 0.36),
-            ("layup", 23.1, 12.1, 0.62),
-            ("shot", 0.0, 0.0, 0.39),
-        ],
-        tsr: &[
-            ("lrun", "rrun", 37.2),
-            ("run", "rrun", 77.3),
-            ("run", "shot", 0.0),
-            ("layup", "run", 49.3),
-        ],
-        avg: (63.4, 35.6, 0.45, Some(41.0)),
-    },
-    PaperRow {
-        method: "SM+Ours",
-        cells: &[
-            ("run", 99.8, 62.7, 0.37),
-            ("lrun", 100.0, 42.2, 0.42),
-            ("rrun", 99.7, 42.0, 0.34),
-            ("layup", 96.6, 58.5, 0.57),
-            ("shot", 100.0, 56.0, 0.46),
-        ],
-        tsr: &[
-            ("lrun", "rrun", 100.0),
-            ("run", "rrun", 99.7),
-            ("run", "shot", 99.8),
-            ("layup", "run", 99.8),
-        ],
-        avg: (99.2, 52.3, 0.43, Some(99.8)),
-    },
-];
+/// The paper's Tables 1 (BallPlay), 2 (ParaHome) and 5 (Locomotion), read
+/// from `src/eval/paper_tables.toml` (compiled in).
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PaperTables {
+    /// Table 1.
+    pub table1: Vec<PaperRow>,
+    /// Table 2.
+    pub table2: Vec<PaperRow>,
+    /// Table 5.
+    pub table5: Vec<PaperRow>,
+}
 
-/// Table 5 (Locomotion).
-pub const TABLE5: &[PaperRow] = &[
-    PaperRow {
-        method: "DM",
-        cells: &[
-            ("getup", 24.4, 24.9, 0.64),
-            ("run_no_object", 46.5, 22.2, 0.73),
-        ],
-        tsr: &[
-            ("getup", "run_no_object", 0.2),
-            ("run_no_object", "getup", 22.4),
-        ],
-        avg: (f64::NAN, f64::NAN, f64::NAN, None),
-    },
-    PaperRow {
-        method: "DM+eNSI",
-        cells: &[
-            ("getup", 96.9, 97.9, 0.47),
-            ("run_no_object", 93.2, 84.9, 0.65),
-        ],
-        tsr: &[
-            ("getup", "run_no_object", 62.6),
-            ("run_no_object", "getup", 5.7),
-        ],
-        avg: (f64::NAN, f64::NAN, f64::NAN, None),
-    },
-    PaperRow {
-        method: "DM+Ours",
-        cells: &[
-            ("getup", 98.5, 98.2, 0.54),
-            ("run_no_object", 97.1, 81.5, 0.64),
-        ],
-        tsr: &[
-            ("getup", "run_no_object", 67.2),
-            ("run_no_object", "getup", 96.2),
-        ],
-        avg: (f64::NAN, f64::NAN, f64::NAN, None),
-    },
-    PaperRow {
-        method: "SM",
-        cells: &[
-            ("getup", 69.2, 66.0, 0.80),
-            ("run_no_object", 74.0, 36.4, 0.78),
-        ],
-        tsr: &[
-            ("getup", "run_no_object", 10.5),
-            ("run_no_object", "getup", 44.9),
-        ],
-        avg: (f64::NAN, f64::NAN, f64::NAN, None),
-    },
-    PaperRow {
-        method: "SM+eNSI",
-        cells: &[
-            ("getup", 97.8, 97.3, 0.66),
-            ("run_no_object", 99.4, 91.8, 0.77),
-        ],
-        tsr: &[
-            ("getup", "run_no_object", 93.4),
-            ("run_no_object", "getup", 12.7),
-        ],
-        avg: (f64::NAN, f64::NAN, f64::NAN, None),
-    },
-    PaperRow {
-        method: "SM+Ours",
-        cells: &[
-            ("getup", 99.1, 98.0, 0.64),
-            ("run_no_object", 99.9, 91.0, 0.71),
-        ],
-        tsr: &[
-            ("getup", "run_no_object", 97.9),
-            ("run_no_object", "getup", 100.0),
-        ],
-        avg: (f64::NAN, f64::NAN, f64::NAN, None),
-    },
-];
-
-/// Table 2 (ParaHome).
-pub const TABLE2: &[PaperRow] = &[
-    PaperRow {
-        method: "SM",
-        cells: &[
-            ("place_pan", 38.4, 1.0, 0.92),
-            ("place_kettle", 0.0, 0.0, 0.51),
-            ("place_book", 0.0, 0.0, 0.53),
-            ("drink_cup", 0.0, 0.0, 0.39),
-            ("pour_kettle", 0.0, 0.0, 0.84),
-            ("getup_chair", 0.0, 0.0, 0.55),
-            ("pour_kettlecup", 0.0, 0.0, 0.79),
-        ],
-        tsr: &[],
-        avg: (5.5, 0.1, 0.65, None),
-    },
-    PaperRow {
-        method: "SM+eNSI",
-        cells: &[
-            ("place_pan", 100.0, 16.2, 0.88),
-            ("place_kettle", 0.0, 0.0, 0.53),
-            ("place_book", 0.0, 0.0, 0.32),
-            ("drink_cup", 0.0, 0.0, 0.42),
-            ("pour_kettle", 0.0, 0.0, 0.67),
-            ("getup_chair", 0.0, 0.0, 0.55),
-            ("pour_kettlecup", 0.0, 0.0, 0.74),
-        ],
-        tsr: &[],
-        avg: (14.3, 2.3, 0.59, None),
-    },
-    PaperRow {
-        method: "SM+T",
-        cells: &[
-            ("place_pan", 51.6, 12.6, 0.93),
-            ("place_kettle", 0.0, 0.0, 0.30),
-            ("place_book", 100.0, 12.1, 0.85),
-            ("drink_cup", 99.9, 20.3, 0.84),
-            ("pour_kettle", 100.0, 21.5, 0.95),
-            ("getup_chair", 0.0, 0.0, 0.63),
-            ("pour_kettlecup", 48.1, 8.0, 0.86),
-        ],
-        tsr: &[],
-        avg: (57.1, 15.6, 0.77, None),
-    },
-    PaperRow {
-        method: "SM+Ours",
-        cells: &[
-            ("place_pan", 100.0, 22.2, 0.86),
-            ("place_kettle", 100.0, 49.9, 0.52),
-            ("place_book", 100.0, 82.4, 0.86),
-            ("drink_cup", 100.0, 33.9, 0.89),
-            ("pour_kettle", 99.9, 22.5, 0.93),
-            ("getup_chair", 100.0, 46.6, 0.74),
-            ("pour_kettlecup", 100.0, 23.1, 0.87),
-        ],
-        tsr: &[],
-        avg: (100.0, 40.1, 0.81, None),
-    },
-];
+/// The paper's tables (parsed once; the file is checked by the tests).
+pub fn paper_tables() -> &'static PaperTables {
+    static TABLES: std::sync::LazyLock<PaperTables> = std::sync::LazyLock::new(|| {
+        toml::from_str(include_str!("../eval/paper_tables.toml"))
+            .expect("src/eval/paper_tables.toml is valid (tests parse it)")
+    });
+    &TABLES
+}
 
 /// Column names the paper uses for skill ids.
 pub fn display_name(skill: &str) -> String {
@@ -367,12 +152,12 @@ pub fn paper_row(p: &PaperRow) -> MethodRow {
         cells: p
             .cells
             .iter()
-            .map(|(s, a, b, c)| (s.to_string(), (*a, *b, *c)))
+            .map(|(s, a, b, c)| (s.clone(), (*a, *b, *c)))
             .collect(),
         tsr: p
             .tsr
             .iter()
-            .map(|(a, b, v)| ((a.to_string(), b.to_string()), *v))
+            .map(|(a, b, v)| ((a.clone(), b.clone()), *v))
             .collect(),
         trial_steps: BTreeMap::new(),
         trial_steps_recorded: false,
@@ -611,9 +396,10 @@ pub fn text(header: &[String], body: &[Vec<String>]) -> String {
 
 /// Which paper table matches these skills.
 fn paper_table(rows: &[MethodRow]) -> &'static [PaperRow] {
+    let t = paper_tables();
     let has = |s: &str| rows.iter().any(|r| r.cells.contains_key(s));
     if has("getup") || has("run_no_object") {
-        TABLE5
+        &t.table5
     } else if has("place_pan")
         || has("drink_cup")
         || has("pour_kettle")
@@ -622,9 +408,9 @@ fn paper_table(rows: &[MethodRow]) -> &'static [PaperRow] {
         || has("place_book")
         || has("pour_kettlecup")
     {
-        TABLE2
+        &t.table2
     } else {
-        TABLE1
+        &t.table1
     }
 }
 
@@ -685,12 +471,25 @@ mod tests {
     use super::*;
 
     fn skills_of(t: &[PaperRow]) -> Vec<String> {
-        t[0].cells.iter().map(|c| c.0.to_string()).collect()
+        t[0].cells.iter().map(|c| c.0.clone()).collect()
     }
 
     #[test]
     fn averaging_the_paper_cells_reproduces_its_avg_cells() {
-        for t in [TABLE1, TABLE2, TABLE5] {
+        let tables = paper_tables();
+        assert_eq!(
+            (
+                tables.table1.len(),
+                tables.table2.len(),
+                tables.table5.len()
+            ),
+            (6, 4, 6)
+        );
+        for (t, table2) in [
+            (&tables.table1, false),
+            (&tables.table2, true),
+            (&tables.table5, false),
+        ] {
             let skills = skills_of(t);
             for p in t {
                 let r = paper_row(p);
@@ -707,7 +506,7 @@ mod tests {
                 );
                 // Table 2's SM+T eNSR Avg. (15.6) is not the mean of its cells
                 // (10.64): a known inconsistency of the paper (Table 2 as printed)
-                if !(p.method == "SM+T" && std::ptr::eq(t, TABLE2)) {
+                if !(p.method == "SM+T" && table2) {
                     assert!(
                         (b - p.avg.1).abs() <= 0.051,
                         "{}: eNSR avg {b} vs {}",
@@ -724,7 +523,7 @@ mod tests {
                     p.method,
                     p.avg.2
                 );
-                if let Some(tsr) = p.avg.3 {
+                if let Some(tsr) = p.tsr_avg {
                     assert!(
                         (d - tsr).abs() <= 0.051,
                         "{}: TSR avg {d} vs {tsr}",
