@@ -147,6 +147,14 @@ fn assert_gains_moved(variant: &str) {
     }
 }
 
+/// One `<default class>` per gain triple, holding its joint defaults.
+fn class_defaults(classes: &[(Triple, String)]) -> String {
+    classes
+        .iter()
+        .map(|(t, c)| format!("<default class=\"{c}\">{}</default>\n", joint_default(t)))
+        .collect()
+}
+
 /// (a) One `<default class>` per distinct gain triple, referred to by `class=`.
 fn by_class(text: &str) -> String {
     let doc = roxmltree::Document::parse(text).unwrap();
@@ -155,11 +163,7 @@ fn by_class(text: &str) -> String {
     for j in joints(&doc) {
         edits.push(add_attr(j, "class", class_of(&classes, &triple(j))));
     }
-    let defs: String = classes
-        .iter()
-        .map(|(t, c)| format!("<default class=\"{c}\">{}</default>\n", joint_default(t)))
-        .collect();
-    edits.push(into_top_default(text, &doc, &defs));
+    edits.push(into_top_default(text, &doc, &class_defaults(&classes)));
     apply(text, edits)
 }
 
@@ -194,11 +198,7 @@ fn by_childclass(text: &str) -> String {
         }
         inherited.insert(b.id(), mine);
     }
-    let defs: String = classes
-        .iter()
-        .map(|(t, c)| format!("<default class=\"{c}\">{}</default>\n", joint_default(t)))
-        .collect();
-    edits.push(into_top_default(text, &doc, &defs));
+    edits.push(into_top_default(text, &doc, &class_defaults(&classes)));
     apply(text, edits)
 }
 
