@@ -600,186 +600,70 @@ fn settings_out_of_range_are_refused_naming_the_key() {
     let r = s(&run);
     let out = dir.path().join("o");
     let o = s(&out);
-    for (args, key) in [
+    // each command's words, with {r} the run folder and {o} the output
+    for (cmd, key) in [
+        ("bench sim --set sim.physics_hz=0", "sim.physics_hz = 0"),
+        ("bench sim --set sim.physics_hz=inf", "sim.physics_hz = inf"),
+        ("bench sim --set sim.substeps=0", "sim.substeps = 0"),
         (
-            vec!["bench", "sim", "--set", "sim.physics_hz=0"],
-            "sim.physics_hz = 0",
-        ),
-        (
-            vec!["bench", "sim", "--set", "sim.physics_hz=inf"],
-            "sim.physics_hz = inf",
-        ),
-        (
-            vec!["bench", "sim", "--set", "sim.substeps=0"],
-            "sim.substeps = 0",
-        ),
-        (
-            vec!["bench", "sim", "--set", "sim.ground_restitution=2"],
+            "bench sim --set sim.ground_restitution=2",
             "sim.ground_restitution = 2",
         ),
         (
-            vec![
-                "ingest",
-                "--dataset",
-                "ballplay",
-                "--out",
-                o,
-                "--set",
-                "ingest.fps=-30",
-            ],
+            "ingest --dataset ballplay --out {o} --set ingest.fps=-30",
             "ingest.fps = -30",
         ),
         (
-            vec![
-                "build-stg",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--set",
-                "build-stg.tau=nan",
-            ],
+            "build-stg --from {r} --out {o} --set build-stg.tau=nan",
             "build-stg.tau = NaN",
         ),
         (
-            vec![
-                "sample-stf",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--set",
-                "sample-stf.p_n=1.5",
-            ],
+            "sample-stf --from {r} --out {o} --set sample-stf.p_n=1.5",
             "sample-stf.p_n = 1.5",
         ),
         (
-            vec![
-                "sample-stf",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--set",
-                "sample-stf.eps.dof=-0.1",
-            ],
+            "sample-stf --from {r} --out {o} --set sample-stf.eps.dof=-0.1",
             "sample-stf.eps.dof = -0.1",
         ),
         (
-            vec![
-                "pretrain-he",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--set",
-                "pretrain-he.lr=0",
-            ],
+            "pretrain-he --from {r} --out {o} --set pretrain-he.lr=0",
             "pretrain-he.lr = 0",
         ),
         (
-            vec![
-                "pretrain-he",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--set",
-                "pretrain-he.kernel=0",
-            ],
+            "pretrain-he --from {r} --out {o} --set pretrain-he.kernel=0",
             "pretrain-he.kernel = 0",
         ),
         (
-            vec![
-                "train",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--set",
-                "train.ppo.lr=nan",
-            ],
+            "train --from {r} --out {o} --set train.ppo.lr=nan",
             "train.ppo.lr = NaN",
         ),
         (
-            vec![
-                "train",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--set",
-                "train.ppo.gamma=1.5",
-            ],
+            "train --from {r} --out {o} --set train.ppo.gamma=1.5",
             "train.ppo.gamma = 1.5",
         ),
         (
-            vec![
-                "train",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--set",
-                "train.contact_radius=-1",
-            ],
+            "train --from {r} --out {o} --set train.contact_radius=-1",
             "train.contact_radius = -1",
         ),
         (
-            vec![
-                "train",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--set",
-                "train.num_envs=0",
-            ],
+            "train --from {r} --out {o} --set train.num_envs=0",
             "train.num_envs = 0",
         ),
         (
-            vec![
-                "eval",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--policy",
-                r,
-                "--set",
-                "eval.trials=0",
-            ],
+            "eval --from {r} --out {o} --policy {r} --set eval.trials=0",
             "eval.trials = 0",
         ),
         (
-            vec![
-                "eval",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--policy",
-                r,
-                "--set",
-                "eval.record=500",
-            ],
+            "eval --from {r} --out {o} --policy {r} --set eval.record=500",
             "eval.record = 500",
         ),
         (
-            vec![
-                "eval",
-                "--from",
-                r,
-                "--out",
-                o,
-                "--policy",
-                r,
-                "--set",
-                "eval.metrics=[]",
-            ],
+            "eval --from {r} --out {o} --policy {r} --set eval.metrics=[]",
             "eval.metrics = []",
         ),
     ] {
+        let cmd = cmd.replace("{r}", r).replace("{o}", o);
+        let args: Vec<&str> = cmd.split_whitespace().collect();
         let err = fails(&args);
         assert!(err.contains(key), "{args:?}: `{key}` missing in:\n{err}");
         assert!(!out.exists(), "{args:?} left {}", out.display());

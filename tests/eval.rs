@@ -53,10 +53,7 @@ fn eval_writes_trials_and_a_summary_with_every_cell() {
     let b = &s.batches[0];
     assert_eq!(b.num_rows(), 19);
     use arrow::array::AsArray;
-    let steps = t.batches[0]
-        .column_by_name("steps")
-        .unwrap()
-        .as_primitive::<arrow::datatypes::UInt32Type>();
+    let steps = prim::<arrow::datatypes::UInt32Type>(&t.batches[0], "steps");
     let metric = t.batches[0]
         .column_by_name("metric")
         .unwrap()
@@ -66,27 +63,12 @@ fn eval_writes_trials_and_a_summary_with_every_cell() {
             assert_eq!(steps.value(i), 20, "trial length");
         }
     }
-    let lo = b
-        .column_by_name("ci_low")
-        .unwrap()
-        .as_primitive::<arrow::datatypes::Float64Type>();
-    let hi = b
-        .column_by_name("ci_high")
-        .unwrap()
-        .as_primitive::<arrow::datatypes::Float64Type>();
-    let v = b
-        .column_by_name("value")
-        .unwrap()
-        .as_primitive::<arrow::datatypes::Float64Type>();
+    let lo = prim::<arrow::datatypes::Float64Type>(b, "ci_low");
+    let hi = prim::<arrow::datatypes::Float64Type>(b, "ci_high");
+    let v = prim::<arrow::datatypes::Float64Type>(b, "value");
     let m = b.column_by_name("metric").unwrap().as_string::<i32>();
-    let successes = b
-        .column_by_name("successes")
-        .unwrap()
-        .as_primitive::<arrow::datatypes::UInt32Type>();
-    let trial_steps = b
-        .column_by_name("trial_steps")
-        .unwrap()
-        .as_primitive::<arrow::datatypes::UInt32Type>();
+    let successes = prim::<arrow::datatypes::UInt32Type>(b, "successes");
+    let trial_steps = prim::<arrow::datatypes::UInt32Type>(b, "trial_steps");
     for i in 0..b.num_rows() {
         if m.value(i) == "nr" {
             assert!(v.value(i) > 0.0 && v.value(i) <= 1.0);

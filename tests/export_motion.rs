@@ -18,44 +18,9 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// Python modules the readers need (`.ci/run` pip-installs them).
-const PY_MODULES: &str = "numpy, pyarrow, bvh, pygltflib";
-
-/// A Python 3 with numpy, pyarrow, bvh and pygltflib: the system one if it
-/// has them, else a virtual environment under target/ made on first use.
+/// A Python 3 with the readers (`.ci/run` pip-installs them).
 fn python() -> PathBuf {
-    let has = |py: &Path| {
-        Command::new(py)
-            .args(["-c", &format!("import {PY_MODULES}")])
-            .output()
-            .map(|o| o.status.success())
-            .unwrap_or(false)
-    };
-    let system = Path::new("python3");
-    if has(system) {
-        return system.into();
-    }
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-venv-export");
-    let py = venv.join("bin/python");
-    if !has(&py) {
-        let made = Command::new("python3")
-            .args(["-m", "venv"])
-            .arg(&venv)
-            .status()
-            .map(|s| s.success())
-            .unwrap_or(false)
-            && Command::new(&py)
-                .args(["-m", "pip", "install", "--quiet"])
-                .args(["numpy", "pyarrow", "bvh", "pygltflib"])
-                .status()
-                .map(|s| s.success())
-                .unwrap_or(false);
-        assert!(
-            made && has(&py),
-            "this test needs Python 3 with {PY_MODULES}: `pip install numpy pyarrow bvh pygltflib` (bash .ci/run does)"
-        );
-    }
-    py
+    python_with(&["numpy", "pyarrow", "bvh", "pygltflib"])
 }
 
 /// Run a Python `script` with `args`; require success and return stdout.

@@ -6,19 +6,18 @@
 //! `roxmltree` (attribute and element byte ranges), so the attributes really
 //! move.
 
+mod common;
+
 use sha2::{Digest, Sha256};
 use skillaug::sim::mjcf::Model;
 use std::collections::HashMap;
 use std::ops::Range;
-use std::path::Path;
 
 const HUMANOID: &str = "mocap_humanoid.xml";
 const PARAHOME: &str = "mocap_parahome_boxhand.xml";
 
 fn shipped(name: &str) -> String {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/datasets/assets/mjcf")
-        .join(name);
+    let path = common::data_root().join("assets/mjcf").join(name);
     std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 

@@ -310,3 +310,16 @@ pub fn common_for(run: &Path, out: PathBuf) -> skillaug::stage::Common {
     })
     .unwrap()
 }
+
+/// Column `name` of `b` as a primitive array of `T` (panics naming the
+/// column when it is missing or of another type).
+pub fn prim<'a, T: arrow::datatypes::ArrowPrimitiveType>(
+    b: &'a arrow::record_batch::RecordBatch,
+    name: &str,
+) -> &'a arrow::array::PrimitiveArray<T> {
+    use arrow::array::AsArray;
+    b.column_by_name(name)
+        .unwrap_or_else(|| panic!("no column `{name}`"))
+        .as_primitive_opt::<T>()
+        .unwrap_or_else(|| panic!("column `{name}` is not of the expected type"))
+}
