@@ -99,24 +99,22 @@ impl Common {
     }
 }
 
-/// The outputs of one stage in its run folder, committed all at once.
+/// The outputs of one stage in its run folder, committed all at once. The
+/// folder itself is made (and removed again when the stage fails and
+/// leaves it empty) by the stage's [`crate::table::io::OutputLock`].
 pub struct Outputs {
     dir: PathBuf,
-    created: bool,
-    staged: Option<Staged>,
+    staged: Staged,
 }
 
 impl Outputs {
-    /// Prepare `dir` (created if missing; removed again if the stage fails
-    /// before committing and the folder is still empty).
+    /// Stage outputs into `dir` (created if missing).
     pub fn new(dir: &Path) -> Result<Outputs> {
-        let created = !dir.exists();
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create the output folder {}", dir.display()))?;
         Ok(Outputs {
             dir: dir.to_path_buf(),
-            created,
-            staged: Some(Staged::new()),
+            staged: Staged::new(),
         })
     }
 
@@ -128,36 +126,23 @@ impl Outputs {
         meta: &[(String, String)],
     ) -> Result<()> {
         let dest = self.dir.join(name);
-        self.staged.as_mut().unwrap().parquet(&dest, batch, meta)
+        self.staged.parquet(&dest, batch, meta)
     }
 
     /// Stage `<dir>/<name>`, written by `write` to the temporary path it gets.
     pub fn with_path(&mut self, name: &str, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
         let dest = self.dir.join(name);
-        self.staged.as_mut().unwrap().with_path(&dest, write)
+        self.staged.with_path(&dest, write)
     }
 
     /// Stage `<dir>/<name>` as text.
     pub fn text(&mut self, name: &str, text: &str) -> Result<()> {
         let dest = self.dir.join(name);
-        self.staged.as_mut().unwrap().text(&dest, text)
+        self.staged.text(&dest, text)
     }
 
     /// Move every staged output into place.
-    pub fn commit(mut self) -> Result<()> {
-        self.staged.take().unwrap().commit()
-    }
-}
-
-impl Drop for Outputs {
-    fn drop(&mut self) {
-        // Temporary files remove themselves when dropped; an uncommitted stage
-        // also removes the folder it created, if nothing else is in it.
-        if let Some(staged) = self.staged.take() {
-            drop(staged);
-            if self.created {
-                let _ = std::fs::remove_dir(&self.dir);
-            }
-        }
+    pub fn commit(self) -> Result<()> {
+        self.staged.commit()
     }
 }

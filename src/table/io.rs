@@ -28,31 +28,14 @@ impl Staged {
         Self::default()
     }
 
-    /// A temporary file beside `dest`, created with mode 0666 less the
-    /// process's umask (what `File::create` gives), not tempfile's 0600:
-    /// the mode survives the rename, and an output must get the mode the
-    /// umask implies whichever writer made it.
+    /// A temporary file beside `dest` (tempfile's mode 0600 until
+    /// [`Staged::commit`] gives it the folder's).
     fn temp_for(dest: &Path) -> Result<NamedTempFile> {
-        Self::temp_with(dest, Some(0o666))
-    }
-
-    /// A temporary file beside `dest`; `mode` (unix permission bits, less
-    /// the umask as `open(2)` applies it) replaces tempfile's 0600.
-    fn temp_with(dest: &Path, mode: Option<u32>) -> Result<NamedTempFile> {
-        let dir = dest
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let mut b = tempfile::Builder::new();
-        b.prefix(".skillaug-").suffix(".tmp");
-        #[cfg(unix)]
-        if let Some(m) = mode {
-            use std::os::unix::fs::PermissionsExt;
-            b.permissions(std::fs::Permissions::from_mode(m));
-        }
-        #[cfg(not(unix))]
-        let _ = mode;
-        b.tempfile_in(dir)
+        let dir = folder_of(dest);
+        tempfile::Builder::new()
+            .prefix(".skillaug-")
+            .suffix(".tmp")
+            .tempfile_in(dir)
             .with_context(|| format!("cannot create a temporary file in {}", dir.display()))
     }
 
@@ -108,20 +91,17 @@ impl Staged {
 
     /// Stage a text file.
     pub fn text(&mut self, dest: &Path, text: &str) -> Result<()> {
-        let mut tmp = Self::temp_for(dest)?;
-        tmp.write_all(text.as_bytes())?;
-        tmp.flush()?;
-        self.files.push((tmp, dest.to_path_buf()));
-        Ok(())
+        self.bytes(dest, text.as_bytes())
     }
 
     /// Rename every staged file into place, each with the mode a new file
-    /// gets in its folder ([`fresh_file_mode`]): a writer that replaced the
-    /// temporary file by its own (candle's safetensors writer renames a
-    /// 0600 file of its own onto the path) does not decide the mode.
+    /// gets in its folder ([`fresh_file_mode`]), whichever writer made it
+    /// (candle's safetensors writer renames a 0600 file of its own onto the
+    /// temporary path).
     pub fn commit(self) -> Result<()> {
         // Everything that can fail is done for every file before the first
         // rename, so that a failure moves nothing into place.
+        let mut modes: Vec<(&Path, u32)> = Vec::new();
         for (tmp, dest) in &self.files {
             if dest.is_dir() {
                 bail!(
@@ -129,7 +109,16 @@ impl Staged {
                     dest.display()
                 );
             }
-            set_fresh_file_mode(tmp.path())?;
+            let dir = folder_of(dest);
+            let mode = match modes.iter().find(|(d, _)| *d == dir) {
+                Some((_, m)) => *m,
+                None => {
+                    let m = fresh_file_mode(dir)?;
+                    modes.push((dir, m));
+                    m
+                }
+            };
+            set_mode(tmp.path(), mode)?;
             tmp.as_file().sync_all()?;
         }
         for (tmp, dest) in self.files {
@@ -140,36 +129,45 @@ impl Staged {
     }
 }
 
+/// The folder of output `dest` (`.` for a bare file name).
+fn folder_of(dest: &Path) -> &Path {
+    dest.parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+}
+
 /// The permission bits a file created now in `dir` gets (0666 less the
 /// umask, or what the folder's default ACL gives), found by creating and
 /// removing a probe file: the umask cannot be read without changing it.
-#[cfg(unix)]
-pub fn fresh_file_mode(dir: &Path) -> Result<u32> {
-    use std::os::unix::fs::PermissionsExt;
-    let probe = tempfile::Builder::new()
-        .prefix(".skillaug-mode-")
-        .permissions(std::fs::Permissions::from_mode(0o666))
-        .tempfile_in(dir)
-        .with_context(|| format!("cannot create a file in {}", dir.display()))?;
-    Ok(probe.as_file().metadata()?.permissions().mode() & 0o777)
-}
-
-/// Give the file at `path` the mode a new file gets in its folder
-/// ([`fresh_file_mode`]); a no-op off unix.
-pub fn set_fresh_file_mode(path: &Path) -> Result<()> {
+/// 0o644 off unix (unused there).
+fn fresh_file_mode(dir: &Path) -> Result<u32> {
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;
-        let dir = path
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let mode = fresh_file_mode(dir)?;
+        let probe = tempfile::Builder::new()
+            .prefix(".skillaug-mode-")
+            .permissions(std::fs::Permissions::from_mode(0o666))
+            .tempfile_in(dir)
+            .with_context(|| format!("cannot create a file in {}", dir.display()))?;
+        Ok(probe.as_file().metadata()?.permissions().mode() & 0o777)
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = dir;
+        Ok(0o644)
+    }
+}
+
+/// Set the permission bits of `path` (a no-op off unix).
+fn set_mode(path: &Path, mode: u32) -> Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
         std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode))
             .with_context(|| format!("cannot set the mode of {}", path.display()))?;
     }
     #[cfg(not(unix))]
-    let _ = path;
+    let _ = (path, mode);
     Ok(())
 }
 
