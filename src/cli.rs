@@ -253,13 +253,8 @@ pub struct MotionArgs {
 }
 
 impl MotionArgs {
-    /// The selection of run folder `from`; `all_clips_by_default`: every
-    /// clip when nothing is named.
-    pub fn selection(
-        &self,
-        from: &std::path::Path,
-        all_clips_by_default: bool,
-    ) -> crate::export::motions::Selection {
+    /// The selection of run folder `from` (every clip when nothing is named).
+    pub fn selection(&self, from: &std::path::Path) -> crate::export::motions::Selection {
         crate::export::motions::Selection {
             from: from.to_path_buf(),
             clips: self.clip.clone(),
@@ -269,7 +264,6 @@ impl MotionArgs {
             rollouts: self.rollouts.clone(),
             trials: self.trial.clone(),
             max_items: self.max,
-            all_clips_by_default,
         }
     }
 }

@@ -79,7 +79,7 @@ pub fn run(cli: Cli) -> Result<()> {
         }),
         Command::View(a) => {
             let n = stage::view::run(&stage::view::ViewRequest {
-                select: a.motions.selection(&a.from, true),
+                select: a.motions.selection(&a.from),
                 data_root: a.data_root,
                 out: a.out.clone(),
             })?;

@@ -31,8 +31,6 @@ pub struct Selection {
     pub trials: Vec<u32>,
     /// At most this many items of each kind chosen by default.
     pub max_items: usize,
-    /// Every clip when nothing else is asked for.
-    pub all_clips_by_default: bool,
 }
 
 /// One character's motion: a posture per frame.
@@ -124,7 +122,7 @@ pub fn gather(lib: &MotionLib, sel: &Selection) -> Result<Vec<Motion>> {
         }
         clips.extend(of);
     }
-    if clips.is_empty() && sel.stf.is_none() && sel.rollouts.is_none() && sel.all_clips_by_default {
+    if clips.is_empty() && sel.stf.is_none() && sel.rollouts.is_none() {
         clips = (0..lib.clips.len()).collect();
     }
     // each clip once, in the order asked (a --clip may also be in a --skill)

@@ -50,12 +50,11 @@ fn make_parent(path: &Path, created: &mut Vec<PathBuf>) -> Result<()> {
 fn export(a: &ExportArgs, created: &mut Vec<PathBuf>) -> Result<()> {
     let started = Instant::now();
     let motion = a.bvh.is_some() || a.gltf.is_some();
-    match (motion, a.onnx.is_some()) {
-        (false, false) => bail!(
+    // --onnx with --bvh or --gltf is refused by clap (`conflicts_with_all`)
+    if !motion && a.onnx.is_none() {
+        bail!(
             "export: give --bvh DIR and/or --gltf FILE (motion of --from RUN), or --policy DIR --onnx FILE"
-        ),
-        (true, true) => bail!("export: motion (--bvh, --gltf) and a policy (--onnx) are two commands"),
-        _ => {}
+        );
     }
     if a.onnx.is_none() && a.policy.is_some() {
         bail!("export: --policy goes with --onnx FILE; motion (--bvh, --gltf) is another command");
@@ -83,7 +82,7 @@ fn export(a: &ExportArgs, created: &mut Vec<PathBuf>) -> Result<()> {
         let root = crate::dataset::data_root(a.data_root.as_deref())?;
         let model = Model::for_skeleton(&root, lib.skeleton)?;
         // like `view`: every clip when nothing is named
-        let sel = a.motions.selection(from, true);
+        let sel = a.motions.selection(from);
         let motions = gather(&lib, &sel)?;
         if motions.is_empty() {
             bail!("export: nothing to export: give --clip, --skill, --stf or --rollouts");
