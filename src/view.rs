@@ -400,7 +400,6 @@ pub fn write(scene: &Scene, path: &Path) -> Result<()> {
     if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    // a page is for reading (and serving), so not the usual 0600
     let mut staged = crate::table::io::Staged::new();
     staged.text(path, &text)?;
     staged.commit()

@@ -134,7 +134,8 @@ const OTHER_ORIENTATIONS: [&str; 4] = ["axisangle", "euler", "xyaxes", "zaxis"];
 
 /// Elements of the body tree that add or move bodies, joints or geoms in ways
 /// this reader does not follow.
-const UNSUPPORTED_IN_BODY: [&str; 4] = ["frame", "include", "replicate", "attach"];
+/// (`<include>` is refused anywhere in the document before the bodies are read.)
+const UNSUPPORTED_IN_BODY: [&str; 3] = ["frame", "replicate", "attach"];
 
 /// Smallest norm accepted for a quaternion or a joint axis, and length for a
 /// `fromto`.
@@ -283,12 +284,12 @@ impl Defaults {
         &self,
         node: roxmltree::Node,
         childclass: Option<&str>,
-        what: &dyn Fn() -> String,
+        what: &str,
     ) -> Result<&Class> {
         let name = node.attribute("class").or(childclass).unwrap_or(&self.top);
         self.classes
             .get(name)
-            .ok_or_else(|| anyhow!("{}: unknown default class `{name}`", what()))
+            .ok_or_else(|| anyhow!("{what}: unknown default class `{name}`"))
     }
 }
 
@@ -468,11 +469,11 @@ fn walk(
         match c.tag_name().name() {
             "joint" => {
                 let jname = c.attribute("name").unwrap_or("").to_string();
-                let label = || format!("body `{name}` joint `{jname}`");
+                let what = format!("body `{name}` joint `{jname}`");
                 let e = Element {
                     node: c,
-                    class: &defaults.active(c, childclass, &label)?.joint,
-                    what: label(),
+                    class: &defaults.active(c, childclass, &what)?.joint,
+                    what,
                 };
                 let kind = e.get("type").unwrap_or_else(|| "hinge".to_string());
                 if !JOINT_TYPES.contains(&kind.as_str()) {
@@ -494,11 +495,11 @@ fn walk(
                 });
             }
             "geom" => {
-                let label = || format!("body `{name}` geom {}", geoms.len());
+                let what = format!("body `{name}` geom {}", geoms.len());
                 let e = Element {
                     node: c,
-                    class: &defaults.active(c, childclass, &label)?.geom,
-                    what: label(),
+                    class: &defaults.active(c, childclass, &what)?.geom,
+                    what,
                 };
                 geoms.push(geom(&e)?);
             }
