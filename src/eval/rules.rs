@@ -108,12 +108,23 @@ impl Rule {
     /// at 300), one more than the counted steps for the counting rules. A
     /// shorter trial is never a success ([`Judge::success`]).
     pub fn min_steps(self) -> usize {
+        if let Some(late) = self.late_from() {
+            return late + 1;
+        }
         match self {
-            Rule::Run => 101,
-            Rule::Layup | Rule::Shot { .. } => 301,
             Rule::Pickup | Rule::Getup | Rule::Place { .. } => 61,
             Rule::Drink | Rule::Pour | Rule::MultiPour => 31,
-            Rule::RunNoObject => 1,
+            _ => 1,
+        }
+    }
+
+    /// The step from which a phase rule checks its late condition (`None`
+    /// for the other rules).
+    fn late_from(self) -> Option<usize> {
+        match self {
+            Rule::Run => Some(100),
+            Rule::Layup | Rule::Shot { .. } => Some(300),
+            _ => None,
         }
     }
 
@@ -189,19 +200,20 @@ impl Judge {
         let ball = p.obj.first().copied().unwrap_or([f32::NAN; 3]);
         let ball_v = p.obj_vel.first().copied().unwrap_or([0.0; 3]);
         let n = self.n;
+        let early_phase = self.rule.late_from().is_some_and(|late| n < late);
         match self.rule {
             Rule::Run => {
                 let c = z > 0.5 && dist(ball, p.root) < 1.5 && ball_v[2].abs() > 1e-5;
-                self.phases(n < 100, c, c);
+                self.phases(early_phase, c, c);
             }
             Rule::Layup => {
                 let early = z > 0.5 && ball[2] > 1.8;
                 let late = z > 0.5 && ball_v[2].abs() > 1e-5;
-                self.phases(n < 300, early, late);
+                self.phases(early_phase, early, late);
             }
             Rule::Shot { target_z } => {
                 let early = z > 0.5 && (ball[2] - target_z).abs() < 0.2;
-                self.phases(n < 300, early, z > 0.5);
+                self.phases(early_phase, early, z > 0.5);
             }
             Rule::Pickup => self.count_if(z > 0.5 && dist(ball, p.root) < 0.5),
             Rule::Getup => self.count_if(z > 0.7 && norm(p.root_vel) < 1.0),

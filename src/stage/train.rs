@@ -461,7 +461,6 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
     cfg.stf |= sw.stf;
     cfg.ats |= sw.ats;
     cfg.he |= sw.he;
-    crate::config::Validate::validate(&cfg, "train")?;
     let _lock = common.lock_output("train")?;
     let dev = crate::nn::device(sw.device.as_deref().unwrap_or("cpu"))?;
     let stf_cfg: StfConfig = common.settings("sample-stf")?;
@@ -486,7 +485,7 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
                 .cfg
                 .ingest_id
                 .as_ref()
-                .filter(|e| !id.is_empty() && **e != id)
+                .filter(|e| table::ingest_ids_differ(e, &id))
             {
                 bail!(
                     "{}/he.config.json: the history encoder was pre-trained on other clips \

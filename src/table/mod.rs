@@ -138,6 +138,12 @@ pub fn ingest_id(table: &std::path::Path) -> anyhow::Result<String> {
     )
 }
 
+/// Whether two ingest ids name different runs (an empty id is unknown and
+/// differs from nothing).
+pub fn ingest_ids_differ(a: &str, b: &str) -> bool {
+    !a.is_empty() && !b.is_empty() && a != b
+}
+
 /// Check that the table at `path` (metadata `skillaug.ingest_id`, when it
 /// has the key) was made from the clips of ingest run `id` (empty: not
 /// known, nothing to check).
@@ -147,7 +153,7 @@ pub fn ingest_id(table: &std::path::Path) -> anyhow::Result<String> {
 pub fn check_ingest_id(path: &std::path::Path, id: &str, stage: &str) -> anyhow::Result<()> {
     let meta = io::read_metadata(path)?;
     if let Some((_, v)) = meta.iter().find(|(k, _)| k == "skillaug.ingest_id") {
-        if !v.is_empty() && !id.is_empty() && v != id {
+        if ingest_ids_differ(v, id) {
             anyhow::bail!(
                 "{} was made from the clips of another ingest run (ingest id {v}) than the \
                  clips read with it ({id}): give the run folder it was made from, or run \
@@ -179,7 +185,7 @@ pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::Moti
     let fp = run.join("frames.parquet");
     if fp.is_file() {
         let (a, b) = (ingest_id(&cp)?, ingest_id(&fp)?);
-        if !a.is_empty() && !b.is_empty() && a != b {
+        if ingest_ids_differ(&a, &b) {
             anyhow::bail!(
                 "{} and {} come from two different ingest runs (ingest ids {a} and {b}): two \
                  runs wrote into one folder; ingest again",
