@@ -60,7 +60,7 @@ pub struct StageArgs {
     /// Dataset manifest: a name in datasets/ (ballplay, ballplay-m, locomotion, parahome) or a .toml path.
     #[arg(long, value_name = "NAME", conflicts_with = "from")]
     pub dataset: Option<String>,
-    /// A plain folder of .pt clips instead of a manifest (skill = parent folder name).
+    /// ingest, check-fk: a plain folder of .pt clips instead of a manifest (skill = parent folder name); later stages: the run folder to read (default: --out).
     #[arg(long, value_name = "DIR")]
     pub from: Option<PathBuf>,
     /// Folder holding the releases (ballplay/, ballplay-m/, locomotion/, parahome/).
@@ -247,7 +247,7 @@ pub struct MotionArgs {
     /// Trials of --rollouts (repeatable; default the first --max of each cell).
     #[arg(long, value_name = "K", requires = "rollouts")]
     pub trial: Vec<u32>,
-    /// Items of each kind chosen by default.
+    /// STF trajectories, and trials per cell, chosen by default (clips: all of them).
     #[arg(long, default_value_t = 8)]
     pub max: usize,
 }

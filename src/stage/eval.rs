@@ -46,8 +46,9 @@ pub struct EvalConfig {
     pub envs: usize,
     /// Which metrics: any of "sr", "tsr", "nsr", "nr".
     pub metrics: Vec<String>,
-    /// Trial length override, policy steps (0 = each rule's own: 600 for
-    /// BallPlay, 200-400 for ParaHome).
+    /// Trial length override of the sr, nsr and tsr trials, policy steps
+    /// (0 = each rule's own: 600 for BallPlay, 200-400 for ParaHome); nr
+    /// trials follow their reference to its end whatever this says.
     pub steps: usize,
     /// Row label of this policy in reports ("" = from its switches, e.g. "SM+STF").
     pub label: String,

@@ -206,7 +206,10 @@ pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::Moti
         clips,
         frames,
     };
-    lib.check(&cp.display().to_string())?;
+    lib.check(&format!(
+        "{} (clips.parquet, frames.parquet)",
+        run.display()
+    ))?;
     Ok(lib)
 }
 
