@@ -9,9 +9,11 @@ mod common;
 
 use common::*;
 use rand::SeedableRng;
+use skillaug::rl::config::PolicyMeta;
 use skillaug::rl::humanoid::HeRuntime;
+use skillaug::rl::trainer::environment;
 use skillaug::rl::{Agent, VecEnv};
-use skillaug::stage::train::{environment, setup, PolicyMeta};
+use skillaug::stage::train::setup;
 use std::path::Path;
 
 /// The agreement asked of ONNX Runtime and skillaug's agent.

@@ -216,7 +216,9 @@ fn a_critic_only_update_leaves_the_policy_alone() {
     let mut r = start(5);
     let ro = collect(&r.agent, &mut r.env, HORIZON, &mut r.tracker, &mut r.rng).unwrap();
     let before = weights(&r.agent);
-    r.agent.update_with(&ro, &mut r.rng, true).unwrap();
+    r.agent
+        .update_with(&ro, &mut r.rng, true, &skillaug::rl::comm::Solo)
+        .unwrap();
     let after = weights(&r.agent);
     let changed = |prefix: &str| {
         before

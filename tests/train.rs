@@ -8,9 +8,11 @@ use arrow::array::AsArray;
 use arrow::datatypes::Float64Type;
 use common::*;
 use rand::SeedableRng;
+use skillaug::rl::config::TrainConfig;
 use skillaug::rl::humanoid::{obs_dim, write_observation};
+use skillaug::rl::trainer::environment;
 use skillaug::rl::VecEnv;
-use skillaug::stage::train::{environment, setup, TrainConfig};
+use skillaug::stage::train::setup;
 use std::path::Path;
 
 /// With [`TINY_TRAIN`]: two mini-epochs, a checkpoint every iteration, two threads.
@@ -646,7 +648,15 @@ fn the_warm_start_fits_the_next_reference_pose() {
     )
     .unwrap();
     let (before, after) = agent
-        .fit_mean(&obs, &targets, 30, 256, 1e-3, &mut rng)
+        .fit_mean(
+            &obs,
+            &targets,
+            30,
+            256,
+            1e-3,
+            &mut rng,
+            &skillaug::rl::comm::Solo,
+        )
         .unwrap();
     eprintln!("warm start: action mse {before:.4} -> {after:.4}");
     assert!(after < 0.5 * before, "{before} -> {after}");

@@ -529,6 +529,29 @@ pub struct EnvStats {
 }
 
 impl EnvStats {
+    /// Add the totals of `o` (another rank's) to these.
+    pub fn add(&mut self, o: &EnvStats) {
+        self.steps += o.steps;
+        self.masked += o.masked;
+        self.reward_sum += o.reward_sum;
+        self.sm_sum += o.sm_sum;
+        self.episodes += o.episodes;
+        self.falls += o.falls;
+        self.collapses += o.collapses;
+        self.lost += o.lost;
+        self.lost_object += o.lost_object;
+        for (a, b) in self.sm_factor_sums.iter_mut().zip(o.sm_factor_sums) {
+            *a += b;
+        }
+        self.continuations += o.continuations;
+        self.length_sum += o.length_sum;
+        self.starts.rsi += o.starts.rsi;
+        self.starts.rsi_noised += o.starts.rsi_noised;
+        self.starts.stg += o.starts.stg;
+        self.starts.stg_noised += o.starts.stg_noised;
+        self.n_masked_sum += o.n_masked_sum;
+    }
+
     /// Mean unmasked training reward per step.
     pub fn mean_reward(&self) -> f64 {
         self.reward_sum / (self.steps - self.masked).max(1) as f64
@@ -932,6 +955,9 @@ pub struct HumanoidEnv<'a> {
     obs: Vec<f32>,
     he: Option<HeRuntime>,
     stats: EnvStats,
+    /// ATS records since the last [`HumanoidEnv::take_ats_log`]: (clip,
+    /// start frame, episode mean reward).
+    ats_log: Vec<(usize, usize, f64)>,
     probes: Vec<Probe>,
     sm: Vec<Option<f64>>,
     record: bool,
@@ -1013,6 +1039,7 @@ impl<'a> HumanoidEnv<'a> {
             obs: Vec::new(),
             he: parts.he,
             stats: EnvStats::default(),
+            ats_log: Vec::new(),
             probes: Vec::new(),
             sm: Vec::new(),
             record: false,
@@ -1146,6 +1173,24 @@ impl<'a> HumanoidEnv<'a> {
     /// The ATS table.
     pub fn ats(&self) -> &Ats {
         &self.ats
+    }
+
+    /// The ATS records (clip, start frame, episode mean reward) of the
+    /// episodes finished since the last call, in the order they were
+    /// folded into the table.
+    pub fn take_ats_log(&mut self) -> Vec<(usize, usize, f64)> {
+        std::mem::take(&mut self.ats_log)
+    }
+
+    /// Set the ATS table to `base` with `records` folded in, in order (the
+    /// records of every rank of a data-parallel run, so that all ranks hold
+    /// the same table), and refresh the weights.
+    pub fn replay_ats(&mut self, base: Ats, records: &[(usize, usize, f64)]) {
+        self.ats = base;
+        for &(c, f, r) in records {
+            self.ats.record(c, f, r, self.ctx.cfg.ats_update);
+        }
+        self.refresh_ats();
     }
 
     /// Replace the ATS table (a resumed run) and refresh the weights.
@@ -1438,8 +1483,9 @@ impl VecEnv for HumanoidEnv<'_> {
                 self.stats.continuations += (!ep.cont.is_empty()) as u64;
                 if ep.n > 0 {
                     let (c, f) = ep.ats_key;
-                    self.ats
-                        .record(c, f, ep.sum / ep.n as f64, self.ctx.cfg.ats_update);
+                    let r = ep.sum / ep.n as f64;
+                    self.ats.record(c, f, r, self.ctx.cfg.ats_update);
+                    self.ats_log.push((c, f, r));
                 }
                 done.push(e);
             }

@@ -15,11 +15,13 @@
 //! timeouts bootstrapped from the value of the episode's last state while
 //! terminations are not.
 
+pub mod comm;
 pub mod config;
 pub mod humanoid;
 pub mod norm;
 pub mod pointmass;
 pub mod ppo;
+pub mod trainer;
 
 pub use norm::RunningNorm;
 pub use ppo::{gae, ActOut, Agent, GaeInput, PpoConfig, Rollout, Transition, UpdateStats};

@@ -13,6 +13,17 @@ pub const NORM_EPS: f64 = 1e-5;
 /// Normalised values are clamped to `[-NORM_CLIP, NORM_CLIP]`.
 pub const NORM_CLIP: f64 = 5.0;
 
+/// The moments of one batch ([`RunningNorm::batch_moments`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BatchMoments {
+    /// Mean per dimension.
+    pub mean: Vec<f64>,
+    /// Unbiased variance per dimension (0 for a batch of one row).
+    pub var: Vec<f64>,
+    /// Number of rows.
+    pub count: f64,
+}
+
 /// Per-dimension running mean and variance with a sample count.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RunningNorm {
@@ -52,6 +63,19 @@ impl RunningNorm {
     /// Merge a batch of rows (`data.len() == rows * dim`). A batch of one row
     /// has no unbiased variance and is merged with batch variance 0.
     pub fn update(&mut self, data: &[f32]) -> Result<()> {
+        if let Some(b) = self.batch_moments(data)? {
+            self.merge(&b.mean, &b.var, b.count);
+        }
+        Ok(())
+    }
+
+    /// The mean and unbiased variance per dimension of the rows of `data`
+    /// and their count (`None` for no row); what [`RunningNorm::update`]
+    /// merges.
+    ///
+    /// # Errors
+    /// When `data` is not whole rows of this normaliser's dimension.
+    pub fn batch_moments(&self, data: &[f32]) -> Result<Option<BatchMoments>> {
         let d = self.dim();
         ensure!(
             d > 0 && data.len().is_multiple_of(d),
@@ -60,7 +84,7 @@ impl RunningNorm {
         );
         let n = data.len() / d;
         if n == 0 {
-            return Ok(());
+            return Ok(None);
         }
         let mut bmean = vec![0.0f64; d];
         for row in data.chunks_exact(d) {
@@ -83,8 +107,11 @@ impl RunningNorm {
                 *v /= (n - 1) as f64;
             }
         }
-        self.merge(&bmean, &bvar, n as f64);
-        Ok(())
+        Ok(Some(BatchMoments {
+            mean: bmean,
+            var: bvar,
+            count: n as f64,
+        }))
     }
 
     /// Merge batch moments (`bmean`, `bvar`) of `bcount` samples.

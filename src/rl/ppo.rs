@@ -55,6 +55,7 @@
 //! sampling uses the caller's generator, so a run repeats bit for bit for
 //! the same seed and thread count.
 
+use super::comm::Comm;
 use super::norm::RunningNorm;
 use crate::nn::{Mlp, MlpInit, Params};
 use anyhow::{bail, ensure, Context, Result};
@@ -217,7 +218,7 @@ impl Adam {
     fn apply(
         &mut self,
         vars: &[(String, Var)],
-        grads: &candle_core::backprop::GradStore,
+        grads: &[Option<Tensor>],
         lr: f64,
         eps: f64,
         skip_missing: bool,
@@ -229,7 +230,7 @@ impl Adam {
         let bc1 = 1.0 - B1.powi(t);
         let bc2 = 1.0 - B2.powi(t);
         for (k, (name, var)) in vars.iter().enumerate() {
-            let Some(g) = grads.get(var.as_tensor()) else {
+            let Some(g) = &grads[k] else {
                 if skip_missing {
                     continue;
                 }
@@ -243,6 +244,70 @@ impl Adam {
         }
         Ok(())
     }
+}
+
+/// The gradient of every variable of `vars` (`None` where the loss does not
+/// depend on it), averaged over the ranks of `comm`: one all-reduce of the
+/// concatenated gradients per minibatch, as MPI Adam does (see
+/// [`super::comm`]). With one rank the gradients are returned untouched.
+fn rank_mean_grads(
+    vars: &[(String, Var)],
+    grads: &candle_core::backprop::GradStore,
+    comm: &dyn Comm,
+) -> Result<Vec<Option<Tensor>>> {
+    let mut gs: Vec<Option<Tensor>> = vars
+        .iter()
+        .map(|(_, v)| grads.get(v.as_tensor()).cloned())
+        .collect();
+    if comm.size() > 1 {
+        let mut flat = Vec::new();
+        for g in gs.iter().flatten() {
+            flat.extend(g.flatten_all()?.to_vec1::<f32>()?);
+        }
+        comm.sum_f32(&mut flat)?;
+        let inv = 1.0 / comm.size() as f32;
+        let mut at = 0;
+        for t in gs.iter_mut().flatten() {
+            let n = t.elem_count();
+            let v: Vec<f32> = flat[at..at + n].iter().map(|x| x * inv).collect();
+            *t = Tensor::from_vec(v, t.shape(), t.device())?;
+            at += n;
+        }
+    }
+    Ok(gs)
+}
+
+/// Merge the batch `data` (rows of `norm.dim()`) of every rank into `norm`,
+/// in rank order, so that every rank holds the same statistics. With one
+/// rank this is [`RunningNorm::update`]. The moments travel as raw `f64`
+/// bytes: nothing is rounded on the way.
+fn merge_ranks(norm: &mut RunningNorm, data: &[f32], comm: &dyn Comm) -> Result<()> {
+    if comm.size() == 1 {
+        return norm.update(data);
+    }
+    let d = norm.dim();
+    let mut bytes = Vec::new();
+    if let Some(b) = norm.batch_moments(data)? {
+        for x in std::iter::once(&b.count).chain(&b.mean).chain(&b.var) {
+            bytes.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    for b in comm.all_gather(&bytes)? {
+        if b.is_empty() {
+            continue;
+        }
+        ensure!(
+            b.len() == 8 * (1 + 2 * d),
+            "normaliser: another rank sent {} bytes for {d} dimensions",
+            b.len()
+        );
+        let x: Vec<f64> = b
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect();
+        norm.merge(&x[1..1 + d], &x[1 + d..], x[0]);
+    }
+    Ok(())
 }
 
 /// What [`Agent::act`] returns for a batch of `N` observations.
@@ -685,17 +750,26 @@ impl Agent {
     /// One PPO update on a finished rollout; the minibatch permutations are
     /// drawn from `rng`.
     pub fn update<R: Rng + ?Sized>(&mut self, ro: &Rollout, rng: &mut R) -> Result<UpdateStats> {
-        self.update_with(ro, rng, false)
+        self.update_with(ro, rng, false, &super::comm::Solo)
     }
 
     /// [`Agent::update`]; with `critic_only` the policy loss and the bounds
     /// loss are left out, so only the value network learns (the critic
-    /// warm-up after a behaviour-cloned start).
+    /// warm-up after a behaviour-cloned start). With several ranks in
+    /// `comm`, `ro` is this rank's share of the batch: the advantage
+    /// statistics, the normalisers, every minibatch's gradient (this rank's
+    /// `minibatch / ranks` rows) and the KL of the adaptive rate are
+    /// combined over the ranks, so every rank applies the same steps; the
+    /// returned statistics are the ranks' means.
+    ///
+    /// # Errors
+    /// When `ro` does not fit the agent, is empty, or a collective fails.
     pub fn update_with<R: Rng + ?Sized>(
         &mut self,
         ro: &Rollout,
         rng: &mut R,
         critic_only: bool,
+        comm: &dyn Comm,
     ) -> Result<UpdateStats> {
         ensure!(
             ro.obs_dim == self.obs_dim && ro.act_dim == self.act_dim,
@@ -704,30 +778,39 @@ impl Agent {
         let (mut adv, ret) = ro.advantages(self.cfg.gamma, self.cfg.lambda)?;
         let b = adv.len();
         ensure!(b > 0, "ppo: empty rollout");
+        // sums over every rank's rows (one rank: this batch)
+        let mut sums = [
+            adv.iter().map(|&a| a as f64).sum::<f64>(),
+            ret.iter().map(|&a| a as f64).sum::<f64>(),
+            b as f64,
+        ];
+        comm.sum_f64(&mut sums)?;
+        let b_all = sums[2];
         let mut stats = UpdateStats {
-            adv_mean: adv.iter().map(|&a| a as f64).sum::<f64>() / b as f64,
-            return_mean: ret.iter().map(|&a| a as f64).sum::<f64>() / b as f64,
+            adv_mean: sums[0] / b_all,
+            return_mean: sums[1] / b_all,
             ..Default::default()
         };
         if self.cfg.normalize_advantages {
             let m = stats.adv_mean;
-            let var =
-                adv.iter().map(|&a| (a as f64 - m).powi(2)).sum::<f64>() / (b.max(2) - 1) as f64;
+            let mut sq = [adv.iter().map(|&a| (a as f64 - m).powi(2)).sum::<f64>()];
+            comm.sum_f64(&mut sq)?;
+            let var = sq[0] / (b_all.max(2.0) - 1.0);
             let s = var.sqrt() + 1e-8;
             for a in &mut adv {
                 *a = ((*a as f64 - m) / s) as f32;
             }
         }
         if self.cfg.normalize_obs && !self.cfg.norm_after_update {
-            self.norm.update(&ro.obs)?;
+            merge_ranks(&mut self.norm, &ro.obs, comm)?;
         }
         let dev = self.dev.clone();
         let obs = self.obs_tensor(&ro.obs)?;
         let act = Tensor::from_slice(&ro.actions, (b, self.act_dim), &dev)?;
         let old_logp = Tensor::from_slice(&ro.logp, b, &dev)?;
         let (old_v, ret) = if self.cfg.normalize_value {
-            self.vnorm.update(&ro.values)?;
-            self.vnorm.update(&ret)?;
+            merge_ranks(&mut self.vnorm, &ro.values, comm)?;
+            merge_ranks(&mut self.vnorm, &ret, comm)?;
             (self.vnorm.normalize(&ro.values), self.vnorm.normalize(&ret))
         } else {
             (ro.values.clone(), ret)
@@ -735,7 +818,13 @@ impl Agent {
         let old_v = Tensor::from_vec(old_v, b, &dev)?;
         let adv = Tensor::from_vec(adv, b, &dev)?;
         let ret = Tensor::from_vec(ret, b, &dev)?;
-        let mb = self.cfg.minibatch.min(b);
+        ensure!(
+            self.cfg.minibatch.is_multiple_of(comm.size()),
+            "ppo: minibatch {} is not a multiple of the {} ranks",
+            self.cfg.minibatch,
+            comm.size()
+        );
+        let mb = (self.cfg.minibatch / comm.size()).min(b);
         let d = self.act_dim as f64;
         let logc = 0.5 * d * std::f64::consts::TAU.ln() + d * self.std.ln();
         let eps = self.cfg.clip;
@@ -779,7 +868,7 @@ impl Agent {
                     ((&pl + vl.affine(self.cfg.critic_coef, 0.0)?)?
                         + bl.affine(self.cfg.bounds_coef, 0.0)?)?
                 };
-                let grads = total.backward()?;
+                let grads = rank_mean_grads(&self.vars, &total.backward()?, comm)?;
                 self.adam.apply(
                     &self.vars,
                     &grads,
@@ -805,7 +894,9 @@ impl Agent {
                 stats.steps += 1;
             }
             if let (Some(k), false) = (self.cfg.kl_threshold, critic_only) {
-                let kl = epoch_kl / epoch_n.max(1) as f64;
+                let mut kn = [epoch_kl, epoch_n as f64];
+                comm.sum_f64(&mut kn)?;
+                let kl = kn[0] / kn[1].max(1.0);
                 if kl > 2.0 * k {
                     self.lr_now = (self.lr_now / 1.5).max(self.cfg.lr_min);
                 } else if kl < 0.5 * k {
@@ -814,7 +905,7 @@ impl Agent {
             }
         }
         if self.cfg.normalize_obs && self.cfg.norm_after_update {
-            self.norm.update(&ro.obs)?;
+            merge_ranks(&mut self.norm, &ro.obs, comm)?;
         }
         let k = stats.steps as f64;
         stats.clip_frac /= k;
@@ -823,6 +914,24 @@ impl Agent {
         stats.value_loss /= k;
         stats.bounds_loss /= k;
         stats.total_loss /= k;
+        if comm.size() > 1 {
+            let mut m = [
+                stats.clip_frac,
+                stats.approx_kl,
+                stats.policy_loss,
+                stats.value_loss,
+                stats.bounds_loss,
+                stats.total_loss,
+            ];
+            comm.sum_f64(&mut m)?;
+            let r = comm.size() as f64;
+            stats.clip_frac = m[0] / r;
+            stats.approx_kl = m[1] / r;
+            stats.policy_loss = m[2] / r;
+            stats.value_loss = m[3] / r;
+            stats.bounds_loss = m[4] / r;
+            stats.total_loss = m[5] / r;
+        }
         stats.lr = self.lr_now;
         Ok(stats)
     }
@@ -832,7 +941,16 @@ impl Agent {
     /// `targets` (`N * act_dim`) by mean squared error over `epochs` passes
     /// of shuffled minibatches with a separate Adam at rate `lr` (the PPO
     /// optimiser's moments stay untouched). Returns the mean squared error
-    /// per action value before and after.
+    /// per action value before and after, on this rank's rows.
+    ///
+    /// With several ranks in `comm`, each rank fits its own rows (the same
+    /// number on every rank): the statistics merge every rank's rows and
+    /// each step averages the ranks' gradients of `minibatch` rows each.
+    ///
+    /// # Errors
+    /// When the rows do not fit the agent, or the ranks hold different
+    /// numbers of rows.
+    #[allow(clippy::too_many_arguments)]
     pub fn fit_mean<R: Rng + ?Sized>(
         &mut self,
         obs: &[f32],
@@ -841,6 +959,7 @@ impl Agent {
         minibatch: usize,
         lr: f64,
         rng: &mut R,
+        comm: &dyn Comm,
     ) -> Result<(f64, f64)> {
         let n = obs.len() / self.obs_dim;
         ensure!(
@@ -849,8 +968,17 @@ impl Agent {
             obs.len(),
             targets.len()
         );
+        // every rank must take the same number of steps: sum n and n^2, and
+        // R * sum(n^2) = (sum n)^2 holds only when all n are equal
+        let mut counts = [n as f64, (n * n) as f64];
+        comm.sum_f64(&mut counts)?;
+        let r = comm.size() as f64;
+        ensure!(
+            counts[1] * r == counts[0] * counts[0],
+            "fit_mean: the ranks hold different numbers of rows (this rank {n})"
+        );
         if self.cfg.normalize_obs {
-            self.norm.update(obs)?;
+            merge_ranks(&mut self.norm, obs, comm)?;
         }
         let dev = self.dev.clone();
         let x = self.obs_tensor(obs)?;
@@ -868,7 +996,7 @@ impl Agent {
                 let idx = Tensor::from_slice(chunk, chunk.len(), &dev)?;
                 let mu = self.pi.forward(&x.index_select(&idx, 0)?)?;
                 let loss = (mu - y.index_select(&idx, 0)?)?.sqr()?.mean_all()?;
-                let grads = loss.backward()?;
+                let grads = rank_mean_grads(&self.vars, &loss.backward()?, comm)?;
                 adam.apply(&self.vars, &grads, lr, self.cfg.adam_eps, true)?;
             }
         }

@@ -286,7 +286,9 @@ fn sim_accuracy(lib: &crate::motion::MotionLib, model: &Model, opts: &SimOptions
 }
 
 fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
-    use super::train::{environment, setup, Preset, Timed, TrainConfig};
+    use super::train::setup;
+    use crate::rl::config::{Preset, TrainConfig};
+    use crate::rl::trainer::{environment, Timed};
     use crate::rl::{collect, Agent, EpisodeTracker, VecEnv as _};
     use rand::SeedableRng;
     let tmp = tempfile::tempdir()?;

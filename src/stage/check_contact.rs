@@ -16,7 +16,7 @@ use rayon::prelude::*;
 
 /// Run the command: print the table.
 pub fn run(common: &Common) -> Result<()> {
-    let cfg: super::train::TrainConfig = common.settings("train")?;
+    let cfg: crate::rl::config::TrainConfig = common.settings("train")?;
     let lib = crate::table::load_library(common.input_dir())?;
     let root = crate::dataset::data_root(common.args.data_root.as_deref())?;
     let model = Model::for_skeleton(&root, lib.skeleton)?;

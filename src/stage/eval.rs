@@ -20,13 +20,14 @@
 //! `eval_summary.parquet` (one row per cell with 95 % Wilson intervals),
 //! and a printed table.
 
-use super::train::{environment_with, setup_lib, start_params, PolicyMeta, Setup, TrainConfig};
 use super::Common;
 use crate::augment::stf::StfParams;
 use crate::eval::rules::{Judge, Rule};
 use crate::motion::MotionLib;
 use crate::reward::DatasetKind;
+use crate::rl::config::{PolicyMeta, TrainConfig};
 use crate::rl::humanoid::{EnvConfig, HeRuntime, MaskedReward};
+use crate::rl::trainer::{environment_with, start_params, Setup};
 use crate::rl::{Agent, VecEnv};
 use crate::table::rollout::RolloutStep;
 use crate::table::{self, eval as etable};
@@ -416,7 +417,13 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
     let mut tcfg = meta.train.clone();
     tcfg.skills = meta.skills.clone();
     tcfg.stg = false;
-    let setup = setup_lib(lib, common, &tcfg, &meta.stf)?;
+    let setup = Setup::from_library(
+        lib,
+        common.input_dir(),
+        common.args.data_root.as_deref(),
+        &tcfg,
+        &meta.stf,
+    )?;
     let he = match he_dir {
         Some(dir) => {
             let dev = candle_core::Device::Cpu;

@@ -25,53 +25,6 @@ use std::time::Instant;
 
 pub use crate::augment::settings::StfConfig;
 
-/// Read and check the STG edges of `input` against its clips.
-pub(crate) fn load_edges(
-    input: &Path,
-    lib: &crate::motion::MotionLib,
-    p_e: f64,
-) -> Result<Vec<crate::augment::stg::Edge>> {
-    let path = input.join("stg_edges.parquet");
-    if !path.is_file() {
-        bail!(
-            "{} does not exist: p_e = {p_e} starts trajectories from the Stitched Trajectory Graph; \
-             run `skillaug build-stg --out {}` first (or set sample-stf.p_e=0)",
-            path.display(),
-            input.display()
-        );
-    }
-    let edges = table::stg::read(&path)?;
-    table::check_ingest_id(
-        &path,
-        &table::ingest_id(&input.join("clips.parquet"))?,
-        "build-stg",
-    )?;
-    for (i, e) in edges.iter().enumerate() {
-        let ok = |c: u32, f: u32| {
-            lib.frames
-                .get(c as usize)
-                .is_some_and(|cf| (f as usize) < cf.frames)
-        };
-        if !ok(e.src_clip, e.src_frame)
-            || !ok(e.dst_clip, e.dst_frame)
-            || lib.clips[e.dst_clip as usize].skill != e.target_skill
-        {
-            bail!(
-                "{}: row {i} (clip {} frame {} -> clip {} frame {}, skill {}) does not match the clips of {}: \
-                 run `skillaug build-stg` again",
-                path.display(),
-                e.src_clip,
-                e.src_frame,
-                e.dst_clip,
-                e.dst_frame,
-                e.target_skill,
-                input.display()
-            );
-        }
-    }
-    Ok(edges)
-}
-
 /// Fill `ats` from the rewards table at `path`.
 fn load_rewards(path: &Path, lib: &crate::motion::MotionLib, ats: &mut Ats) -> Result<usize> {
     let rows = table::stf::read_rewards(path)
@@ -137,7 +90,7 @@ pub fn run(common: &Common) -> Result<()> {
         }
     }
     let edges = if cfg.p_e > 0.0 {
-        load_edges(input, &lib, cfg.p_e)?
+        table::stg::load_edges(input, &lib, cfg.p_e)?
     } else {
         Vec::new()
     };

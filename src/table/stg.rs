@@ -5,13 +5,14 @@
 use super::read_util::{check_table, col, strs};
 use super::{schema_of, ColumnSpec};
 use crate::augment::stg::{Edge, SkillSummary};
-use anyhow::Result;
+use anyhow::{bail, Result};
 use arrow::array::{
     ArrayRef, AsArray, Float32Array, Float64Array, ListBuilder, StringArray, UInt32Array,
     UInt32Builder,
 };
 use arrow::datatypes::{DataType, Field, Float32Type, Float64Type, UInt32Type};
 use arrow::record_batch::RecordBatch;
+use std::path::Path;
 use std::sync::Arc;
 
 /// Columns of `stg_edges.parquet`: one kept connection each.
@@ -203,4 +204,53 @@ pub fn read(path: &std::path::Path) -> Result<Vec<Edge>> {
         }
     }
     Ok(out)
+}
+
+/// Read `input/stg_edges.parquet` and check it against the clips of `lib`
+/// (same ingest id, every edge's clips, frames and target skill); `p_e` is
+/// named in the error when the table is missing.
+///
+/// # Errors
+/// A missing or unreadable table, one of another ingest, or an edge that
+/// does not fit the clips.
+pub fn load_edges(input: &Path, lib: &crate::motion::MotionLib, p_e: f64) -> Result<Vec<Edge>> {
+    let path = input.join("stg_edges.parquet");
+    if !path.is_file() {
+        bail!(
+            "{} does not exist: p_e = {p_e} starts trajectories from the Stitched Trajectory Graph; \
+             run `skillaug build-stg --out {}` first (or set sample-stf.p_e=0)",
+            path.display(),
+            input.display()
+        );
+    }
+    let edges = read(&path)?;
+    super::check_ingest_id(
+        &path,
+        &super::ingest_id(&input.join("clips.parquet"))?,
+        "build-stg",
+    )?;
+    for (i, e) in edges.iter().enumerate() {
+        let ok = |c: u32, f: u32| {
+            lib.frames
+                .get(c as usize)
+                .is_some_and(|cf| (f as usize) < cf.frames)
+        };
+        if !ok(e.src_clip, e.src_frame)
+            || !ok(e.dst_clip, e.dst_frame)
+            || lib.clips[e.dst_clip as usize].skill != e.target_skill
+        {
+            bail!(
+                "{}: row {i} (clip {} frame {} -> clip {} frame {}, skill {}) does not match the clips of {}: \
+                 run `skillaug build-stg` again",
+                path.display(),
+                e.src_clip,
+                e.src_frame,
+                e.dst_clip,
+                e.dst_frame,
+                e.target_skill,
+                input.display()
+            );
+        }
+    }
+    Ok(edges)
 }

@@ -1,0 +1,293 @@
+//! Communication between the processes of a data-parallel training run.
+//!
+//! `skillaug train` runs as one process ([`Solo`]) or, built with the `mpi`
+//! cargo feature and started by `mpirun`/`srun`, as R MPI ranks
+//! ([`Mpi`], on the `mpi` crate over the system's MPI library). Every rank
+//! simulates its share of the environments; the trainer sums what the
+//! ranks must agree on through the [`Comm`] trait: gradients after each
+//! minibatch (the MPI Adam of DeepMimic, `xbpeng/DeepMimic`
+//! `learning/solvers/mpi_solver.py`, and of OpenAI Baselines,
+//! `openai/baselines` `baselines/common/mpi_adam.py`), the normalisers'
+//! batch moments, advantage statistics, the approximate KL, the ATS records
+//! and the iteration's metrics. With [`Solo`] every call is the identity, so
+//! a one-process run computes exactly what it did before ranks existed.
+//!
+//! Determinism: a sum over ranks is `MPI_Allreduce` with `MPI_SUM`, whose
+//! result Open MPI's algorithms give identically on every rank for a fixed
+//! rank count and message size; the trainer checks it after every update
+//! by comparing a hash of the weights across ranks
+//! ([`Comm::check_identical`]).
+
+use anyhow::{bail, Result};
+
+/// What the ranks of a run exchange. Every method is collective: all ranks
+/// call it in the same order with buffers of the same length.
+pub trait Comm {
+    /// This process's rank, `0..size`.
+    fn rank(&self) -> usize;
+    /// Number of ranks.
+    fn size(&self) -> usize;
+    /// Element-wise sum over ranks, in place; the same values on every rank.
+    fn sum_f32(&self, buf: &mut [f32]) -> Result<()>;
+    /// Element-wise sum over ranks, in place; the same values on every rank.
+    fn sum_f64(&self, buf: &mut [f64]) -> Result<()>;
+    /// Every rank's `bytes`, in rank order, on every rank.
+    fn all_gather(&self, bytes: &[u8]) -> Result<Vec<Vec<u8>>>;
+    /// Every rank's `bytes`, in rank order, on rank 0 (`None` elsewhere).
+    fn gather(&self, bytes: &[u8]) -> Result<Option<Vec<Vec<u8>>>>;
+
+    /// End the whole job after `err` on this rank, so that the other ranks
+    /// do not wait for it in a collective: with several ranks, print the
+    /// error with this rank's number and abort every rank (`MPI_Abort`).
+    /// With one process, nothing: the caller reports the error.
+    fn abort_on_error(&self, _err: &anyhow::Error) {}
+
+    /// Whether this rank writes the run's outputs (rank 0).
+    fn is_root(&self) -> bool {
+        self.rank() == 0
+    }
+
+    /// Fail on every rank when `value` (a hash of the weights, say) is not
+    /// the same on all of them; `what` names it in the error.
+    fn check_identical(&self, value: u64, what: &str) -> Result<()> {
+        if self.size() == 1 {
+            return Ok(());
+        }
+        let all = self.all_gather(&value.to_le_bytes())?;
+        let first = &all[0];
+        if let Some(r) = all.iter().position(|v| v != first) {
+            bail!(
+                "{what} differ between rank 0 ({:016x}) and rank {r} ({:016x}) of {}",
+                u64::from_le_bytes(first[..8].try_into()?),
+                u64::from_le_bytes(all[r][..8].try_into()?),
+                self.size()
+            );
+        }
+        Ok(())
+    }
+}
+
+/// One process: every collective is the identity.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Solo;
+
+impl Comm for Solo {
+    fn rank(&self) -> usize {
+        0
+    }
+    fn size(&self) -> usize {
+        1
+    }
+    fn sum_f32(&self, _: &mut [f32]) -> Result<()> {
+        Ok(())
+    }
+    fn sum_f64(&self, _: &mut [f64]) -> Result<()> {
+        Ok(())
+    }
+    fn all_gather(&self, bytes: &[u8]) -> Result<Vec<Vec<u8>>> {
+        Ok(vec![bytes.to_vec()])
+    }
+    fn gather(&self, bytes: &[u8]) -> Result<Option<Vec<Vec<u8>>>> {
+        Ok(Some(vec![bytes.to_vec()]))
+    }
+}
+
+/// The number of processes a launcher announces in the environment (Open
+/// MPI's `mpirun`: `OMPI_COMM_WORLD_SIZE`; PMI: `PMI_SIZE`; Slurm's `srun`:
+/// `SLURM_STEP_NUM_TASKS`; MPICH's Hydra: `MPI_LOCALNRANKS`), or `None` for a
+/// process started alone. Read without initialising MPI, so that a build
+/// without the `mpi` feature can refuse a parallel launch.
+pub fn launcher_size() -> Option<usize> {
+    [
+        "OMPI_COMM_WORLD_SIZE",
+        "PMI_SIZE",
+        "SLURM_STEP_NUM_TASKS",
+        "MPI_LOCALNRANKS",
+    ]
+    .iter()
+    .find_map(|k| std::env::var(k).ok()?.trim().parse::<usize>().ok())
+}
+
+/// FNV-1a over the bit patterns of `values` (a cheap fingerprint of the
+/// weights for [`Comm::check_identical`]; a cryptographic hash is not
+/// needed to see two ranks diverge).
+pub fn fingerprint<'a>(values: impl IntoIterator<Item = &'a [f32]>) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for v in values {
+        for x in v {
+            for b in x.to_bits().to_le_bytes() {
+                h ^= b as u64;
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        }
+    }
+    h
+}
+
+#[cfg(feature = "mpi")]
+pub use self::mpi_impl::Mpi;
+
+#[cfg(feature = "mpi")]
+mod mpi_impl {
+    use super::Comm;
+    use anyhow::{ensure, Context, Result};
+    use mpi::collective::SystemOperation;
+    use mpi::datatype::PartitionMut;
+    use mpi::topology::SimpleCommunicator;
+    use mpi::traits::*;
+    use mpi::Count;
+
+    /// The world communicator of an MPI job; MPI is finalised when it drops.
+    pub struct Mpi {
+        world: SimpleCommunicator,
+        // kept for its Drop (MPI_Finalize), after `world`
+        _universe: mpi::environment::Universe,
+    }
+
+    impl Mpi {
+        /// Initialise MPI (once per process).
+        pub fn init() -> Result<Mpi> {
+            let universe = mpi::initialize()
+                .context("MPI is already initialised in this process (one training per process)")?;
+            let world = universe.world();
+            Ok(Mpi {
+                world,
+                _universe: universe,
+            })
+        }
+
+        fn counts(&self, len: usize) -> Result<(Vec<Count>, Vec<Count>)> {
+            let n = self.world.size() as usize;
+            let mut lens = vec![0u64; n];
+            self.world.all_gather_into(&(len as u64), &mut lens[..]);
+            let mut counts = Vec::with_capacity(n);
+            let mut displs = Vec::with_capacity(n);
+            let mut at: u64 = 0;
+            for l in lens {
+                ensure!(
+                    at + l <= i32::MAX as u64,
+                    "MPI gather: {} bytes in all exceed MPI's 2 GiB count",
+                    at + l
+                );
+                counts.push(l as Count);
+                displs.push(at as Count);
+                at += l;
+            }
+            Ok((counts, displs))
+        }
+    }
+
+    /// Each rank's message with its leading byte (see [`framed`]) dropped.
+    fn split(buf: &[u8], counts: &[Count], displs: &[Count]) -> Vec<Vec<u8>> {
+        counts
+            .iter()
+            .zip(displs)
+            .map(|(&c, &d)| buf[d as usize + 1..(d + c) as usize].to_vec())
+            .collect()
+    }
+
+    /// `bytes` behind one leading byte, so that no buffer handed to MPI is
+    /// empty: an empty Rust slice's address is 0x1 for bytes, which Open
+    /// MPI reads as `MPI_IN_PLACE` (seen as `MPI_ERR_ARG` in
+    /// `MPI_Allgatherv`).
+    fn framed(bytes: &[u8]) -> Vec<u8> {
+        let mut v = Vec::with_capacity(bytes.len() + 1);
+        v.push(0);
+        v.extend_from_slice(bytes);
+        v
+    }
+
+    impl Comm for Mpi {
+        fn rank(&self) -> usize {
+            self.world.rank() as usize
+        }
+        fn size(&self) -> usize {
+            self.world.size() as usize
+        }
+        fn sum_f32(&self, buf: &mut [f32]) -> Result<()> {
+            if buf.is_empty() {
+                return Ok(());
+            }
+            let send = buf.to_vec();
+            self.world
+                .all_reduce_into(&send[..], buf, SystemOperation::sum());
+            Ok(())
+        }
+        fn sum_f64(&self, buf: &mut [f64]) -> Result<()> {
+            if buf.is_empty() {
+                return Ok(());
+            }
+            let send = buf.to_vec();
+            self.world
+                .all_reduce_into(&send[..], buf, SystemOperation::sum());
+            Ok(())
+        }
+        fn all_gather(&self, bytes: &[u8]) -> Result<Vec<Vec<u8>>> {
+            let bytes = &framed(bytes)[..];
+            let (counts, displs) = self.counts(bytes.len())?;
+            let total = counts.iter().map(|&c| c as usize).sum();
+            let mut buf = vec![0u8; total];
+            {
+                let mut part = PartitionMut::new(&mut buf[..], &counts[..], &displs[..]);
+                self.world.all_gather_varcount_into(bytes, &mut part);
+            }
+            Ok(split(&buf, &counts, &displs))
+        }
+        fn abort_on_error(&self, err: &anyhow::Error) {
+            if self.world.size() > 1 {
+                eprintln!(
+                    "error: rank {} of {}: {err:#}",
+                    self.world.rank(),
+                    self.world.size()
+                );
+                self.world.abort(1)
+            }
+        }
+        fn gather(&self, bytes: &[u8]) -> Result<Option<Vec<Vec<u8>>>> {
+            let bytes = &framed(bytes)[..];
+            let (counts, displs) = self.counts(bytes.len())?;
+            let root = self.world.process_at_rank(0);
+            if self.world.rank() == 0 {
+                let total = counts.iter().map(|&c| c as usize).sum();
+                let mut buf = vec![0u8; total];
+                {
+                    let mut part = PartitionMut::new(&mut buf[..], &counts[..], &displs[..]);
+                    root.gather_varcount_into_root(bytes, &mut part);
+                }
+                Ok(Some(split(&buf, &counts, &displs)))
+            } else {
+                root.gather_varcount_into(bytes);
+                Ok(None)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn solo_collectives_are_the_identity() {
+        let mut a = [1.5f32, -2.0];
+        Solo.sum_f32(&mut a).unwrap();
+        assert_eq!(a, [1.5, -2.0]);
+        let mut b = [3.0f64];
+        Solo.sum_f64(&mut b).unwrap();
+        assert_eq!(b, [3.0]);
+        assert_eq!(Solo.all_gather(b"xy").unwrap(), vec![b"xy".to_vec()]);
+        assert_eq!(Solo.gather(b"z").unwrap(), Some(vec![b"z".to_vec()]));
+        Solo.check_identical(7, "weights").unwrap();
+    }
+
+    #[test]
+    fn the_fingerprint_sees_one_bit() {
+        let a = [1.0f32, 2.0, 3.0];
+        let mut b = a;
+        b[2] = f32::from_bits(b[2].to_bits() ^ 1);
+        assert_ne!(fingerprint([&a[..]]), fingerprint([&b[..]]));
+        assert_eq!(fingerprint([&a[..]]), fingerprint([&a[..]]));
+        // -0.0 and 0.0 compare equal but are different weights
+        assert_ne!(fingerprint([&[0.0f32][..]]), fingerprint([&[-0.0f32][..]]));
+    }
+}

@@ -1,0 +1,949 @@
+//! The trainer of `skillaug train`: the environment set-up ([`Setup`],
+//! [`environment`]), the PPO loop over the rapier3d humanoid ([`Trainer`]),
+//! its checkpoint (exact resume) and the policy's metadata
+//! ([`Trainer::policy_meta`]). The stage (`src/stage/train.rs`) resolves the
+//! settings, loads the history encoder, drives the loop and writes the
+//! outputs.
+//!
+//! Data-parallel runs: with a [`Comm`] of R ranks, each rank simulates
+//! `envs / R` environments with its own random stream (rank r: ChaCha8
+//! stream r of the seed; rank 0 is the one-process run's generator), and
+//! [`Agent::update_with`] combines the ranks' batches so that every rank
+//! holds the same weights, which [`Trainer::iterate`] checks after every
+//! update. The iteration's metrics and the ATS table are combined over the
+//! ranks too; only rank 0 should write outputs. A checkpoint holds every
+//! rank's generator, episode tracker and running episodes, and resumes with
+//! the same number of ranks only.
+
+use super::comm::{fingerprint, Comm};
+use super::config::{PolicyMeta, TrainConfig};
+use super::humanoid::{EnvConfig, EnvParts, EnvStats, EpisodeRecord, HeRuntime, HumanoidEnv};
+use super::{collect, Agent, EpisodeTracker, StepResult, VecEnv};
+use crate::augment::ats::{Ats, AtsParams};
+use crate::augment::settings::StfConfig;
+use crate::augment::stf::{StfParams, StfSampler};
+use crate::motion::MotionLib;
+use crate::reward::{DatasetKind, RewardOptions, Weights};
+use crate::sim::mjcf::Model;
+use crate::sim::{objects, SimOptions};
+use crate::table::train::{MetricRow, Metrics};
+use anyhow::{bail, ensure, Context, Result};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Everything the environment is built from, loaded once.
+pub struct Setup {
+    /// The motion library.
+    pub lib: MotionLib,
+    /// STG edges (empty without `stg`).
+    pub edges: Vec<crate::augment::stg::Edge>,
+    /// The humanoid model.
+    pub model: Model,
+    /// Objects of the trained clips.
+    pub objects: Vec<crate::sim::ObjectSpec>,
+    /// Physics settings.
+    pub sim: SimOptions,
+    /// STF parameters with the switches applied.
+    pub stf: StfParams,
+    /// ATS exponents.
+    pub ats_params: AtsParams,
+    /// Clip ids being trained.
+    pub clips: Vec<usize>,
+    /// Whether perturbed starts need forward kinematics.
+    pub fk: bool,
+    /// Seam of every clip ([`crate::augment::seam`]).
+    pub seams: Vec<Option<crate::augment::seam::Seam>>,
+}
+
+impl Setup {
+    /// Load the clips of the run folder `input` and everything else the
+    /// environment needs. `data_root` is `--data-root` (the humanoid models
+    /// and objects; [`crate::dataset::data_root`] when `None`).
+    ///
+    /// # Errors
+    /// As [`crate::table::load_library`] and [`Setup::from_library`].
+    pub fn load(
+        input: &Path,
+        data_root: Option<&Path>,
+        cfg: &TrainConfig,
+        stf_cfg: &StfConfig,
+    ) -> Result<Setup> {
+        Setup::from_library(
+            crate::table::load_library(input)?,
+            input,
+            data_root,
+            cfg,
+            stf_cfg,
+        )
+    }
+
+    /// [`Setup::load`] on a library already loaded from `input` (evaluation
+    /// checks the library against the policy first and uses the policy's
+    /// STF settings).
+    ///
+    /// # Errors
+    /// An unknown skill in `train.skills`, `--stg` on ParaHome, STG edges
+    /// that are missing or of other clips, clips that need different
+    /// worlds, or a model or object that cannot be read.
+    pub fn from_library(
+        lib: MotionLib,
+        input: &Path,
+        data_root: Option<&Path>,
+        cfg: &TrainConfig,
+        stf_cfg: &StfConfig,
+    ) -> Result<Setup> {
+        let (base, ats_params) = stf_cfg.params()?;
+        let all = lib.skills();
+        for s in &cfg.skills {
+            if !all.contains(s) {
+                bail!(
+                    "train.skills: no skill `{s}` in {} (skills: {})",
+                    input.display(),
+                    all.join(", ")
+                );
+            }
+        }
+        let clips: Vec<usize> = (0..lib.clips.len())
+            .filter(|c| cfg.skills.is_empty() || cfg.skills.contains(&lib.clips[*c].skill))
+            .collect();
+        let stf = start_params(cfg, &base);
+        if cfg.stg && DatasetKind::of_library(&lib) == DatasetKind::ParaHome {
+            bail!(
+                "train --stg: ParaHome has no Stitched Trajectory Graph (Table 7); leave --stg off"
+            );
+        }
+        let edges = if cfg.stg {
+            crate::table::stg::load_edges(input, &lib, cfg.p_e)?
+        } else {
+            Vec::new()
+        };
+        let root = crate::dataset::data_root(data_root)?;
+        let model = Model::for_skeleton(&root, lib.skeleton)?;
+        let first = &lib.clips[clips[0]];
+        for &c in &clips {
+            let row = &lib.clips[c];
+            if row.objects != first.objects {
+                bail!(
+                    "train: clips `{}` (objects {:?}) and `{}` (objects {:?}) need different worlds; \
+                     train them separately (train.skills)",
+                    first.name,
+                    first.objects,
+                    row.name,
+                    row.objects
+                );
+            }
+        }
+        let objects = objects::load_all(&first.objects, &root)?;
+        let sim = SimOptions::for_fps(first.fps as f64);
+        let min_loop = (cfg.seam_min_loop_s * first.fps as f64).ceil() as usize;
+        let seams = crate::augment::seam::seams(
+            &lib,
+            &Weights::sm(DatasetKind::of_library(&lib)),
+            min_loop.max(1),
+        );
+        Ok(Setup {
+            seams,
+            fk: stf_cfg.fk,
+            lib,
+            edges,
+            model,
+            objects,
+            sim,
+            stf,
+            ats_params,
+            clips,
+        })
+    }
+
+    /// The trained skills, each once, in the library's clip order.
+    pub fn skills(&self) -> Vec<String> {
+        self.lib
+            .skills()
+            .into_iter()
+            .filter(|sk| self.clips.iter().any(|c| self.lib.clips[*c].skill == *sk))
+            .collect()
+    }
+}
+
+/// The STF parameters of `cfg`'s switches over the recipe's `base`.
+pub fn start_params(cfg: &TrainConfig, base: &StfParams) -> StfParams {
+    let mut stf = base.clone();
+    stf.p_e = if cfg.stg { cfg.p_e } else { 0.0 };
+    stf.p_n = if cfg.nsi || cfg.stf { cfg.p_n } else { 0.0 };
+    stf.horizon = cfg.episode_length;
+    if cfg.nsi && !cfg.stf {
+        // ε-NSI follows the centroid's clip: no connection, so no start is
+        // given up for lack of one (τ only decides STF connections)
+        stf.tau = 0.0;
+    }
+    stf
+}
+
+/// Build the training environment of `setup` with `n` worlds.
+///
+/// # Errors
+/// As [`HumanoidEnv::new`].
+pub fn environment<'a>(
+    s: &'a Setup,
+    cfg: &TrainConfig,
+    he: Option<HeRuntime>,
+    n: usize,
+    rng: &mut ChaCha8Rng,
+) -> Result<HumanoidEnv<'a>> {
+    let env_cfg = EnvConfig {
+        early_termination: cfg.early_termination,
+        fall_height: cfg.fall_height,
+        collapse_reward: cfg.collapse_reward,
+        masked_reward: cfg.masked_reward,
+        reward: RewardOptions {
+            contacts: cfg.contacts,
+            contact_detect: cfg.contact_detect,
+            contact_radius: cfg.contact_radius,
+            root_rot: cfg.root_rot,
+            smoothness: cfg.smoothness,
+        },
+        continue_steps: if cfg.continuation {
+            cfg.episode_length
+        } else {
+            0
+        },
+        term_key_distance: cfg.term_key_distance,
+        term_object_distance: cfg.term_object_distance,
+        fall_height_by_skill: cfg.fall_height_by_skill.clone(),
+        seam_masked_min: cfg.seam_masked_min,
+        nsi_follow: cfg.nsi && !cfg.stf,
+        ats: cfg.ats,
+        ats_params: s.ats_params,
+        ats_update: cfg.ats_update,
+        ..EnvConfig::training(cfg.method)
+    };
+    environment_with(s, &s.clips, s.stf.clone(), env_cfg, he, n, rng)
+}
+
+/// Build an environment of `n` worlds over `setup`'s library that starts
+/// in `clips` with `stf`, with explicit settings (evaluation).
+///
+/// # Errors
+/// As [`HumanoidEnv::new`].
+pub fn environment_with<'a>(
+    s: &'a Setup,
+    clips: &[usize],
+    stf: StfParams,
+    env_cfg: EnvConfig,
+    he: Option<HeRuntime>,
+    n: usize,
+    rng: &mut ChaCha8Rng,
+) -> Result<HumanoidEnv<'a>> {
+    let mut ats = Ats::new(&s.lib);
+    for c in 0..s.lib.clips.len() {
+        if !clips.contains(&c) {
+            ats.disable_clip(c);
+        }
+    }
+    let weights = Weights::sm(DatasetKind::of_library(&s.lib));
+    let mut sampler = StfSampler::new(&s.lib, &s.edges, weights);
+    if s.fk && stf.p_n > 0.0 {
+        sampler = sampler.with_model(s.model.clone());
+    }
+    HumanoidEnv::new(
+        EnvParts {
+            lib: &s.lib,
+            sampler,
+            stf,
+            ats,
+            model: s.model.clone(),
+            objects: s.objects.clone(),
+            sim: s.sim.clone(),
+            cfg: env_cfg,
+            he,
+            seams: s.seams.clone(),
+        },
+        n,
+        rng,
+    )
+}
+
+/// Times the environment's steps (the simulation share of an iteration).
+pub struct Timed<'e, E: VecEnv> {
+    /// The wrapped environment.
+    pub env: &'e mut E,
+    /// Seconds spent in `step`.
+    pub secs: f64,
+}
+
+impl<E: VecEnv> VecEnv for Timed<'_, E> {
+    fn num_envs(&self) -> usize {
+        self.env.num_envs()
+    }
+    fn obs_dim(&self) -> usize {
+        self.env.obs_dim()
+    }
+    fn act_dim(&self) -> usize {
+        self.env.act_dim()
+    }
+    fn observe(&self) -> Vec<f32> {
+        self.env.observe()
+    }
+    fn step(&mut self, actions: &[f32], rng: &mut ChaCha8Rng) -> Result<StepResult> {
+        let t = Instant::now();
+        let r = self.env.step(actions, rng);
+        self.secs += t.elapsed().as_secs_f64();
+        r
+    }
+}
+
+/// Hash of the settings a checkpoint may be resumed with (all but
+/// `train.samples`) and the seed.
+///
+/// # Errors
+/// When the settings cannot be written as TOML.
+pub fn settings_hash(cfg: &TrainConfig, stf_cfg: &StfConfig, seed: u64) -> Result<String> {
+    let mut c = cfg.clone();
+    c.samples = 0;
+    let text = format!(
+        "{}\n{}\nseed={seed}",
+        toml::to_string(&c)?,
+        toml::to_string(stf_cfg)?,
+    );
+    Ok(crate::config::hash_text(&text))
+}
+
+/// One rank's part of a checkpoint.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct RankState {
+    rng_seed: Vec<u8>,
+    rng_stream: u64,
+    rng_word_pos: String,
+    tracker: EpisodeTracker,
+    episodes: Vec<EpisodeMeta>,
+}
+
+/// The trainer's state in a checkpoint beside the agent. Rank 0's part is
+/// stored flat (the layout of one-process checkpoints); the other ranks'
+/// parts follow in `ranks`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct TrainerState {
+    format: u32,
+    /// Hash of the resolved settings (without `samples`).
+    settings_hash: String,
+    iteration: u64,
+    samples: u64,
+    rng_seed: Vec<u8>,
+    rng_stream: u64,
+    rng_word_pos: String,
+    tracker: EpisodeTracker,
+    ats: Vec<(usize, usize, f64, u64)>,
+    metrics: Vec<MetricRow>,
+    episodes: Vec<EpisodeMeta>,
+    /// Ranks 1.. of a data-parallel run (absent for one process).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    ranks: Vec<RankState>,
+}
+
+/// A running episode without its actions (those go to `episodes.bin`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct EpisodeMeta {
+    traj: crate::augment::stf::Trajectory,
+    ats_key: (usize, usize),
+    actions: usize,
+}
+
+fn ckpt_dir(out: &Path) -> PathBuf {
+    out.join("checkpoint")
+}
+
+/// The episodes file of rank `r` in a checkpoint folder.
+fn episodes_file(r: usize) -> String {
+    if r == 0 {
+        "episodes.bin".into()
+    } else {
+        format!("episodes.{r}.bin")
+    }
+}
+
+fn actions_bytes(recs: &[EpisodeRecord]) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    for r in recs {
+        for a in &r.actions {
+            bytes.extend_from_slice(&a.to_le_bytes());
+        }
+    }
+    bytes
+}
+
+fn records_of(dir: &Path, file: &str, episodes: &[EpisodeMeta]) -> Result<Vec<EpisodeRecord>> {
+    let path = dir.join(file);
+    let bytes = std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    let total: usize = episodes.iter().map(|e| e.actions).sum();
+    ensure!(
+        bytes.len() == 4 * total,
+        "{}: holds {} bytes, expected {}",
+        path.display(),
+        bytes.len(),
+        4 * total
+    );
+    let mut at = 0;
+    let mut recs = Vec::with_capacity(episodes.len());
+    for e in episodes {
+        let actions = bytes[4 * at..4 * (at + e.actions)]
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        at += e.actions;
+        recs.push(EpisodeRecord {
+            traj: e.traj.clone(),
+            ats_key: e.ats_key,
+            actions,
+        });
+    }
+    Ok(recs)
+}
+
+/// Read the checkpoint of `out` (`checkpoint/`, or `checkpoint.old/` when
+/// a swap was interrupted): the agent, the state and rank `rank`'s part.
+fn load_checkpoint(
+    out: &Path,
+    dev: &candle_core::Device,
+    rank: usize,
+    ranks: usize,
+) -> Result<(Agent, TrainerState, RankState, Vec<EpisodeRecord>)> {
+    let mut dir = ckpt_dir(out);
+    if !dir.join("state.json").is_file() {
+        dir = out.join("checkpoint.old");
+    }
+    ensure!(
+        dir.join("state.json").is_file(),
+        "--resume: no checkpoint in {} (train without --resume to start)",
+        out.display()
+    );
+    let sp = dir.join("state.json");
+    let st: TrainerState = serde_json::from_slice(&std::fs::read(&sp)?)
+        .with_context(|| format!("{} is not a skillaug training checkpoint", sp.display()))?;
+    ensure!(
+        st.format == 1,
+        "{}: checkpoint format {}",
+        sp.display(),
+        st.format
+    );
+    ensure!(
+        st.ranks.len() + 1 == ranks,
+        "--resume: the checkpoint in {} was written by {} rank(s), this run has {ranks}; \
+         resume with the same number of ranks",
+        out.display(),
+        st.ranks.len() + 1
+    );
+    let agent = Agent::load(&dir.join("agent.safetensors"), dev)?;
+    let part = if rank == 0 {
+        RankState {
+            rng_seed: st.rng_seed.clone(),
+            rng_stream: st.rng_stream,
+            rng_word_pos: st.rng_word_pos.clone(),
+            tracker: st.tracker.clone(),
+            episodes: st.episodes.clone(),
+        }
+    } else {
+        st.ranks[rank - 1].clone()
+    };
+    let recs = records_of(&dir, &episodes_file(rank), &part.episodes)?;
+    Ok((agent, st, part, recs))
+}
+
+fn rng_of(part: &RankState) -> Result<ChaCha8Rng> {
+    let mut seed32 = [0u8; 32];
+    ensure!(part.rng_seed.len() == 32, "checkpoint: RNG seed");
+    seed32.copy_from_slice(&part.rng_seed);
+    let mut r = ChaCha8Rng::from_seed(seed32);
+    r.set_stream(part.rng_stream);
+    r.set_word_pos(
+        part.rng_word_pos
+            .parse::<u128>()
+            .context("checkpoint: RNG position")?,
+    );
+    Ok(r)
+}
+
+/// What the behaviour cloning before PPO did ([`Agent::fit_mean`]).
+#[derive(Clone, Debug, Default)]
+pub struct WarmStart {
+    /// States fitted (this rank's).
+    pub states: usize,
+    /// Mean squared action error before and after.
+    pub mse: (f64, f64),
+    /// Seconds taken.
+    pub secs: f64,
+}
+
+/// The PPO loop of `skillaug train` over one rank's share of the
+/// environments (the whole run with [`super::comm::Solo`]).
+pub struct Trainer<'a> {
+    s: &'a Setup,
+    cfg: TrainConfig,
+    comm: &'a dyn Comm,
+    env: HumanoidEnv<'a>,
+    agent: Agent,
+    rng: ChaCha8Rng,
+    tracker: EpisodeTracker,
+    metrics: Vec<MetricRow>,
+    iteration: u64,
+    samples: u64,
+    hash: String,
+    /// Every rank's ATS table after the last iteration (several ranks only).
+    ats_base: Option<Ats>,
+    /// The behaviour cloning before PPO of a fresh start.
+    pub warm_start: Option<WarmStart>,
+}
+
+impl<'a> Trainer<'a> {
+    /// The environments of this rank: `envs / ranks`.
+    fn local_envs(cfg: &TrainConfig, comm: &dyn Comm) -> Result<usize> {
+        let (n, r) = (cfg.envs(), comm.size());
+        ensure!(
+            n.is_multiple_of(r),
+            "train: {n} environments do not split over {r} ranks; set train.num_envs to a multiple of {r}"
+        );
+        let mb = cfg.ppo_config().minibatch;
+        ensure!(
+            mb.is_multiple_of(r),
+            "train: minibatch {mb} does not split over {r} ranks; set train.ppo.minibatch to a multiple of {r}"
+        );
+        Ok(n / r)
+    }
+
+    /// A fresh run: environments, agent (weights from `seed`, the same on
+    /// every rank) and the warm start when `cfg.warm_start_epochs > 0`.
+    ///
+    /// # Errors
+    /// Sizes that do not split over the ranks, or a failure to build the
+    /// environment or the agent.
+    pub fn start(
+        s: &'a Setup,
+        cfg: &TrainConfig,
+        stf_cfg: &StfConfig,
+        he: Option<HeRuntime>,
+        seed: u64,
+        dev: &candle_core::Device,
+        comm: &'a dyn Comm,
+    ) -> Result<Trainer<'a>> {
+        let n = Self::local_envs(cfg, comm)?;
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        if comm.rank() > 0 {
+            rng.set_stream(comm.rank() as u64);
+        }
+        let mut env = environment(s, cfg, he, n, &mut rng)?;
+        env.take_stats();
+        env.take_ats_log();
+        let ppo = cfg.ppo_config();
+        let mut agent = Agent::new(env.obs_dim(), env.act_dim(), &ppo, seed, dev)?;
+        let mut warm_start = None;
+        if cfg.warm_start_epochs > 0 {
+            let t = Instant::now();
+            let (obs, targets) = env.warm_start_data(&s.clips, cfg.warm_start_copies, &mut rng)?;
+            let mse = agent.fit_mean(
+                &obs,
+                &targets,
+                cfg.warm_start_epochs,
+                // 512 for the presets; tiny test minibatches would make thousands of steps
+                ppo.minibatch.clamp(256, 512),
+                cfg.warm_start_lr,
+                &mut rng,
+                comm,
+            )?;
+            warm_start = Some(WarmStart {
+                states: obs.len() / env.obs_dim(),
+                mse,
+                secs: t.elapsed().as_secs_f64(),
+            });
+        }
+        let mut t = Trainer {
+            s,
+            cfg: cfg.clone(),
+            comm,
+            env,
+            agent,
+            rng,
+            tracker: EpisodeTracker::new(n),
+            metrics: Vec::new(),
+            iteration: 0,
+            samples: 0,
+            hash: settings_hash(cfg, stf_cfg, seed)?,
+            ats_base: None,
+            warm_start,
+        };
+        t.check_weights()?;
+        if comm.size() > 1 {
+            t.ats_base = Some(t.env.ats().clone());
+        }
+        Ok(t)
+    }
+
+    /// Continue the run checkpointed in `out` (same settings but
+    /// `train.samples`, same seed and number of ranks).
+    ///
+    /// # Errors
+    /// No checkpoint, settings or rank count that differ from the
+    /// checkpoint's, or a checkpoint that does not fit the environment.
+    #[allow(clippy::too_many_arguments)]
+    pub fn resume(
+        s: &'a Setup,
+        cfg: &TrainConfig,
+        stf_cfg: &StfConfig,
+        he: Option<HeRuntime>,
+        seed: u64,
+        dev: &candle_core::Device,
+        comm: &'a dyn Comm,
+        out: &Path,
+    ) -> Result<Trainer<'a>> {
+        let n = Self::local_envs(cfg, comm)?;
+        let hash = settings_hash(cfg, stf_cfg, seed)?;
+        let (agent, st, part, recs) = load_checkpoint(out, dev, comm.rank(), comm.size())?;
+        ensure!(
+            st.settings_hash == hash,
+            "--resume: the settings differ from those of the checkpoint in {} \
+             (only train.samples may change); start a new --out instead",
+            out.display()
+        );
+        let mut throwaway = ChaCha8Rng::seed_from_u64(seed);
+        let mut env = environment(s, cfg, he, n, &mut throwaway)?;
+        env.restore(recs)?;
+        let mut ats = env.ats().clone();
+        for (c, f, m, v) in &st.ats {
+            ats.restore_stat(*c, *f, *m, *v);
+        }
+        env.set_ats(ats);
+        env.take_stats();
+        env.take_ats_log();
+        ensure!(
+            agent.obs_dim() == env.obs_dim() && agent.act_dim() == env.act_dim(),
+            "--resume: the checkpoint's agent does not fit this environment"
+        );
+        let ats_base = (comm.size() > 1).then(|| env.ats().clone());
+        let t = Trainer {
+            s,
+            cfg: cfg.clone(),
+            comm,
+            env,
+            agent,
+            rng: rng_of(&part)?,
+            tracker: part.tracker,
+            metrics: st.metrics,
+            iteration: st.iteration,
+            samples: st.samples,
+            hash,
+            ats_base,
+            warm_start: None,
+        };
+        t.check_weights()?;
+        Ok(t)
+    }
+
+    /// Fail when the ranks' weights differ (never with one rank).
+    fn check_weights(&self) -> Result<()> {
+        if self.comm.size() == 1 {
+            return Ok(());
+        }
+        let w = self.agent.weights()?;
+        let h = fingerprint(w.iter().map(|(_, v)| v.as_slice()));
+        self.comm.check_identical(
+            h,
+            &format!("the weights after iteration {}", self.iteration),
+        )
+    }
+
+    /// The agent.
+    pub fn agent(&self) -> &Agent {
+        &self.agent
+    }
+
+    /// The environment of this rank.
+    pub fn env(&self) -> &HumanoidEnv<'a> {
+        &self.env
+    }
+
+    /// Iterations done.
+    pub fn iteration(&self) -> u64 {
+        self.iteration
+    }
+
+    /// Samples collected by all ranks so far.
+    pub fn samples(&self) -> u64 {
+        self.samples
+    }
+
+    /// One row per iteration so far.
+    pub fn metrics(&self) -> &[MetricRow] {
+        &self.metrics
+    }
+
+    /// Whether `train.samples` are collected.
+    pub fn done(&self) -> bool {
+        self.samples >= self.cfg.samples
+    }
+
+    /// Sum `local` over the ranks (rank order), the same on every rank.
+    fn rank_stats(&self, local: EnvStats) -> Result<EnvStats> {
+        if self.comm.size() == 1 {
+            return Ok(local);
+        }
+        let mut all = EnvStats::default();
+        for b in self.comm.all_gather(&serde_json::to_vec(&local)?)? {
+            let st: EnvStats = serde_json::from_slice(&b).context("statistics of another rank")?;
+            all.add(&st);
+        }
+        Ok(all)
+    }
+
+    /// Collect one batch, update the agent and return the iteration's
+    /// metrics (every rank's, combined).
+    ///
+    /// # Errors
+    /// A failure of the environment, the update, a collective, or ranks
+    /// whose weights differ after the update.
+    pub fn iterate(&mut self) -> Result<&MetricRow> {
+        let n = self.env.num_envs();
+        let steps = self.cfg.steps();
+        let t0 = Instant::now();
+        let mut timed = Timed {
+            env: &mut self.env,
+            secs: 0.0,
+        };
+        let ro = collect(
+            &self.agent,
+            &mut timed,
+            steps,
+            &mut self.tracker,
+            &mut self.rng,
+        )?;
+        let sim_s = timed.secs;
+        let collect_s = t0.elapsed().as_secs_f64();
+        let local = self.env.take_stats();
+        let st = self.rank_stats(local)?;
+        let log = self.env.take_ats_log();
+        if let Some(base) = self.ats_base.take() {
+            let mut all = Vec::new();
+            for b in self.comm.all_gather(&ats_bytes(&log))? {
+                all.extend(ats_records(&b)?);
+            }
+            self.env.replay_ats(base, &all);
+            self.ats_base = Some(self.env.ats().clone());
+        } else {
+            self.env.refresh_ats();
+        }
+        let t1 = Instant::now();
+        let up = self.agent.update_with(
+            &ro,
+            &mut self.rng,
+            self.iteration < self.cfg.critic_warmup_iters,
+            self.comm,
+        )?;
+        let update_s = t1.elapsed().as_secs_f64();
+        let total_s = t0.elapsed().as_secs_f64();
+        self.iteration += 1;
+        self.check_weights()?;
+        let batch = (n * steps * self.comm.size()) as u64;
+        self.samples += batch;
+        let returns = self.tracker.take();
+        let mut rs = [returns.iter().sum::<f64>(), returns.len() as f64];
+        self.comm.sum_f64(&mut rs)?;
+        let mean_return = if rs[1] == 0.0 {
+            f64::NAN
+        } else {
+            rs[0] / rs[1]
+        };
+        // start fractions are NaN when no episode started in the iteration
+        self.metrics.push(MetricRow {
+            iteration: self.iteration,
+            samples: self.samples,
+            metrics: Metrics {
+                mean_reward: st.mean_reward(),
+                mean_sm_reward: st.mean_sm(),
+                fall_rate: st.fall_rate(),
+                episodes: st.episodes as f64,
+                mean_episode_length: st.mean_length(),
+                mean_return,
+                masked_frac: st.masked as f64 / st.steps.max(1) as f64,
+                stg_start_frac: st.starts.stg_frac(),
+                noised_start_frac: st.starts.noised_frac(),
+                mean_n_masked: st.n_masked_sum as f64 / st.start_count() as f64,
+                policy_loss: up.policy_loss,
+                value_loss: up.value_loss,
+                bounds_loss: up.bounds_loss,
+                clip_frac: up.clip_frac,
+                approx_kl: up.approx_kl,
+                lr: up.lr,
+                mean_sm_body: st.mean_sm_factor(0),
+                mean_sm_object: st.mean_sm_factor(1),
+                mean_sm_rel: st.mean_sm_factor(2),
+                mean_sm_contact: st.mean_sm_factor(3),
+                lost_rate: st.lost_rate(),
+                lost_object_rate: st.lost_object_rate(),
+                continued_frac: if st.episodes > 0 {
+                    st.continuations as f64 / st.episodes as f64
+                } else {
+                    f64::NAN
+                },
+                samples_per_s: batch as f64 / total_s,
+                sim_s,
+                act_s: collect_s - sim_s,
+                update_s,
+            },
+        });
+        Ok(self.metrics.last().expect("a row was just pushed"))
+    }
+
+    /// Write the checkpoint into `out/checkpoint/` (into `checkpoint.tmp/`,
+    /// then swapped into place). Collective: every rank sends its part and
+    /// rank 0 writes.
+    ///
+    /// # Errors
+    /// A collective or a write that fails.
+    pub fn checkpoint(&self, out: &Path) -> Result<()> {
+        let recs = self.env.snapshot();
+        let part = RankState {
+            rng_seed: self.rng.get_seed().to_vec(),
+            rng_stream: self.rng.get_stream(),
+            rng_word_pos: self.rng.get_word_pos().to_string(),
+            tracker: self.tracker.clone(),
+            episodes: recs
+                .iter()
+                .map(|r| EpisodeMeta {
+                    traj: r.traj.clone(),
+                    ats_key: r.ats_key,
+                    actions: r.actions.len(),
+                })
+                .collect(),
+        };
+        let mine = actions_bytes(&recs);
+        if self.comm.size() == 1 {
+            return self.write_checkpoint(out, part, Vec::new(), vec![mine]);
+        }
+        let parts = self.comm.gather(&serde_json::to_vec(&part)?)?;
+        let actions = self.comm.gather(&mine)?;
+        if let (Some(parts), Some(actions)) = (parts, actions) {
+            let others = parts[1..]
+                .iter()
+                .map(|b| serde_json::from_slice(b).context("checkpoint part of another rank"))
+                .collect::<Result<Vec<RankState>>>()?;
+            self.write_checkpoint(out, part, others, actions)?;
+        }
+        Ok(())
+    }
+
+    fn write_checkpoint(
+        &self,
+        out: &Path,
+        part: RankState,
+        others: Vec<RankState>,
+        actions: Vec<Vec<u8>>,
+    ) -> Result<()> {
+        let st = TrainerState {
+            format: 1,
+            settings_hash: self.hash.clone(),
+            iteration: self.iteration,
+            samples: self.samples,
+            rng_seed: part.rng_seed,
+            rng_stream: part.rng_stream,
+            rng_word_pos: part.rng_word_pos,
+            tracker: part.tracker,
+            ats: self.env.ats().visited(),
+            metrics: self.metrics.clone(),
+            episodes: part.episodes,
+            ranks: others,
+        };
+        let tmp = out.join("checkpoint.tmp");
+        let old = out.join("checkpoint.old");
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp)?;
+        }
+        std::fs::create_dir_all(&tmp)?;
+        self.agent.save(&tmp.join("agent.safetensors"))?;
+        for (r, bytes) in actions.iter().enumerate() {
+            std::fs::write(tmp.join(episodes_file(r)), bytes)?;
+        }
+        std::fs::write(tmp.join("state.json"), serde_json::to_vec(&st)?)?;
+        let dir = ckpt_dir(out);
+        if dir.exists() {
+            if old.exists() {
+                std::fs::remove_dir_all(&old)?;
+            }
+            std::fs::rename(&dir, &old)?;
+        }
+        std::fs::rename(&tmp, &dir)?;
+        if old.exists() {
+            std::fs::remove_dir_all(&old)?;
+        }
+        Ok(())
+    }
+
+    /// The metadata that `policy.meta.json` holds for the agent as it is.
+    /// `he_dir` is where the history encoder was read from (`None` without
+    /// `he`).
+    pub fn policy_meta(&self, stf: &StfConfig, he_dir: Option<String>) -> PolicyMeta {
+        let s = self.s;
+        PolicyMeta {
+            format: 1,
+            dataset: s.lib.clips[0].dataset.clone(),
+            skeleton: s.lib.skeleton.name().to_string(),
+            skills: s.skills(),
+            clips: s
+                .clips
+                .iter()
+                .map(|c| s.lib.clips[*c].name.clone())
+                .collect(),
+            objects: s.lib.clips[s.clips[0]].objects.clone(),
+            obs_dim: self.env.obs_dim(),
+            act_dim: self.env.act_dim(),
+            he_dir,
+            train: self.cfg.clone(),
+            stf: stf.clone(),
+            iterations: self.iteration,
+            samples: self.samples,
+        }
+    }
+}
+
+/// ATS records as bytes: (clip u32, frame u32, reward f64) each.
+fn ats_bytes(log: &[(usize, usize, f64)]) -> Vec<u8> {
+    let mut b = Vec::with_capacity(16 * log.len());
+    for &(c, f, r) in log {
+        b.extend_from_slice(&(c as u32).to_le_bytes());
+        b.extend_from_slice(&(f as u32).to_le_bytes());
+        b.extend_from_slice(&r.to_le_bytes());
+    }
+    b
+}
+
+fn ats_records(b: &[u8]) -> Result<Vec<(usize, usize, f64)>> {
+    ensure!(
+        b.len().is_multiple_of(16),
+        "ATS records of another rank: {} bytes",
+        b.len()
+    );
+    Ok(b.chunks_exact(16)
+        .map(|c| {
+            (
+                u32::from_le_bytes(c[0..4].try_into().expect("4 bytes")) as usize,
+                u32::from_le_bytes(c[4..8].try_into().expect("4 bytes")) as usize,
+                f64::from_le_bytes(c[8..16].try_into().expect("8 bytes")),
+            )
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ats_records_travel_exactly() {
+        let log = vec![
+            (3, 17, 0.125),
+            (0, 0, f64::MIN_POSITIVE),
+            (9, 4, -1.0 / 3.0),
+        ];
+        assert_eq!(ats_records(&ats_bytes(&log)).unwrap(), log);
+        assert!(ats_records(&[0u8; 15]).is_err());
+    }
+}
