@@ -222,6 +222,88 @@ pub struct MlpInit {
     pub zero_bias: bool,
 }
 
+impl Mlp {
+    /// The same outputs as [`Module::forward`], bit for bit, for an input
+    /// `x` (`[B, in]`) that needs no gradient (observations): the first
+    /// layer's product goes through [`ConstInputMatmul`], whose backward
+    /// pass gives the weight's gradient only. candle's matmul backward
+    /// always computes the gradient of both operands (candle-core
+    /// `src/backprop.rs`, `Op::Matmul`), and for the first layer the input's
+    /// (`[B, in]` from `[B, out] x [out, in]`) is a quarter of the PPO
+    /// update's arithmetic with a 902-value observation, thrown away.
+    /// Falls back to [`Module::forward`] off the CPU.
+    pub fn forward_const_input(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        let Some(first) = self.layers.first() else {
+            return Ok(x.clone());
+        };
+        if !x.device().is_cpu() || x.rank() != 2 {
+            return self.forward(x);
+        }
+        let mut h =
+            first
+                .weight()
+                .apply_op1_arc(std::sync::Arc::new(Box::new(ConstInputMatmul {
+                    x: x.clone(),
+                })))?;
+        if let Some(b) = first.bias() {
+            h = h.broadcast_add(b)?;
+        }
+        for l in &self.layers[1..] {
+            h = h.relu()?;
+            h = l.forward(&h)?;
+        }
+        Ok(h)
+    }
+}
+
+/// `x · Wᵀ` as an operation of the weight `W` (`[out, in]`) alone, with
+/// `x` (`[B, in]`) a constant: the forward pass is candle's own
+/// `x.matmul(W.t())` (the same bits as `candle_nn::Linear`), the backward
+/// pass `(xᵀ · g)ᵀ`, the gradient candle's matmul and transpose give `W`,
+/// without the gradient of `x` nobody reads (see [`Mlp::forward_const_input`]).
+struct ConstInputMatmul {
+    x: Tensor,
+}
+
+impl candle_core::CustomOp1 for ConstInputMatmul {
+    fn name(&self) -> &'static str {
+        "const-input-matmul"
+    }
+
+    fn cpu_fwd(
+        &self,
+        storage: &candle_core::CpuStorage,
+        layout: &candle_core::Layout,
+    ) -> candle_core::Result<(candle_core::CpuStorage, candle_core::Shape)> {
+        let data = storage.as_slice::<f32>()?;
+        let w = match layout.contiguous_offsets() {
+            Some((a, b)) => Tensor::from_slice(&data[a..b], layout.shape(), &Device::Cpu)?,
+            None => candle_core::bail!("const-input-matmul: the weight is not contiguous"),
+        };
+        let y = self.x.matmul(&w.t()?)?.contiguous()?;
+        let shape = y.shape().clone();
+        let (st, l) = y.storage_and_layout();
+        let out = match &*st {
+            candle_core::Storage::Cpu(c) => match l.contiguous_offsets() {
+                Some((0, n)) if n == c.as_slice::<f32>()?.len() => c.clone(),
+                Some((a, b)) => candle_core::CpuStorage::F32(c.as_slice::<f32>()?[a..b].to_vec()),
+                None => candle_core::bail!("const-input-matmul: a strided product"),
+            },
+            _ => candle_core::bail!("const-input-matmul: the product left the CPU"),
+        };
+        Ok((out, shape))
+    }
+
+    fn bwd(
+        &self,
+        _w: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<Option<Tensor>> {
+        Ok(Some(self.x.t()?.matmul(grad)?.t()?))
+    }
+}
+
 impl Module for Mlp {
     fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         let mut h = x.clone();
@@ -232,5 +314,54 @@ impl Module for Mlp {
             }
         }
         Ok(h)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    /// The PPO update relies on `forward_const_input` giving the same bits
+    /// as `forward`, for the outputs and for every weight's gradient.
+    #[test]
+    fn forward_const_input_matches_forward_bit_for_bit() {
+        let dev = Device::Cpu;
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut p = Params::default();
+        let mlp = Mlp::new(&mut p, "pi", 37, &[19, 11], 5, &mut rng, &dev).unwrap();
+        let x: Vec<f32> = (0..23 * 37).map(|_| rng.random_range(-2.0..2.0)).collect();
+        let x = Tensor::from_vec(x, (23, 37), &dev).unwrap();
+        let (a, b) = (
+            mlp.forward(&x).unwrap(),
+            mlp.forward_const_input(&x).unwrap(),
+        );
+        let bits = |t: &Tensor| -> Vec<u32> {
+            t.flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap()
+                .iter()
+                .map(|v| v.to_bits())
+                .collect()
+        };
+        assert_eq!(bits(&a), bits(&b));
+        let (ga, gb) = (
+            a.sqr().unwrap().sum_all().unwrap().backward().unwrap(),
+            b.sqr().unwrap().sum_all().unwrap().backward().unwrap(),
+        );
+        let vars = p.named();
+        assert_eq!(vars.len(), 6);
+        for (name, v) in &vars {
+            let (x, y) = (ga.get(v.as_tensor()), gb.get(v.as_tensor()));
+            assert_eq!(
+                bits(x.unwrap()),
+                bits(y.unwrap()),
+                "gradient of {name} differs"
+            );
+        }
+        // candle's matmul computes the input's gradient; this one does not
+        assert!(ga.get(&x).is_some());
+        assert!(gb.get(&x).is_none());
     }
 }

@@ -840,7 +840,7 @@ impl Agent {
                 let ov = old_v.index_select(&idx, 0)?;
                 let ad = adv.index_select(&idx, 0)?;
                 let rt = ret.index_select(&idx, 0)?;
-                let mu = self.pi.forward(&x)?;
+                let mu = self.pi.forward_const_input(&x)?;
                 let z = (a - &mu)?.affine(1.0 / self.std, 0.0)?;
                 let logp = z.sqr()?.sum(D::Minus1)?.affine(-0.5, -logc)?;
                 let log_ratio = (logp - &olp)?.clamp(-20f32, 20f32)?;
@@ -848,7 +848,7 @@ impl Agent {
                 let s1 = ratio.mul(&ad)?;
                 let s2 = ratio.clamp(1.0 - eps, 1.0 + eps)?.mul(&ad)?;
                 let pl = s1.minimum(&s2)?.mean_all()?.neg()?;
-                let v = self.vf.forward(&x)?.squeeze(D::Minus1)?;
+                let v = self.vf.forward_const_input(&x)?.squeeze(D::Minus1)?;
                 let vl = if self.cfg.clip_value {
                     let vc = (&ov + (&v - &ov)?.clamp(-eps, eps)?)?;
                     (&v - &rt)?
@@ -994,7 +994,7 @@ impl Agent {
             perm.shuffle(rng);
             for chunk in perm.chunks(minibatch.max(1)) {
                 let idx = Tensor::from_slice(chunk, chunk.len(), &dev)?;
-                let mu = self.pi.forward(&x.index_select(&idx, 0)?)?;
+                let mu = self.pi.forward_const_input(&x.index_select(&idx, 0)?)?;
                 let loss = (mu - y.index_select(&idx, 0)?)?.sqr()?.mean_all()?;
                 let grads = rank_mean_grads(&self.vars, &loss.backward()?, comm)?;
                 adam.apply(&self.vars, &grads, lr, self.cfg.adam_eps, true)?;
