@@ -1,6 +1,7 @@
-//! Evaluation: success rules ([`rules`]) and the statistics of
-//! `skillaug eval`'s tables ([`wilson`]).
+//! Evaluation: the evaluator of `skillaug eval` ([`evaluator`]), success
+//! rules ([`rules`]) and the statistics of its tables ([`wilson`]).
 
+pub mod evaluator;
 pub mod rules;
 
 /// Wilson score interval of `k` successes in `n` trials at 95 %.

@@ -124,6 +124,36 @@ pub fn fingerprint<'a>(values: impl IntoIterator<Item = &'a [f32]>) -> u64 {
     h
 }
 
+/// The ranks of this process: MPI when a launcher started it and the `mpi`
+/// feature is built, else one process ([`Solo`]).
+///
+/// # Errors
+/// A launch as one of several processes by a build without the `mpi`
+/// feature, or MPI that cannot be initialised.
+pub fn world() -> Result<Box<dyn Comm>> {
+    let launched = launcher_size();
+    refuse_launch(launched, cfg!(feature = "mpi"))?;
+    #[cfg(feature = "mpi")]
+    if launched.is_some() {
+        return Ok(Box::new(Mpi::init()?));
+    }
+    Ok(Box::new(Solo))
+}
+
+/// Refuse a launch as one of several processes (`launched`, from
+/// [`launcher_size`]) by a build without MPI: each process
+/// would train alone and all would write the same folder.
+fn refuse_launch(launched: Option<usize>, built_with_mpi: bool) -> Result<()> {
+    if let Some(n) = launched.filter(|n| *n > 1 && !built_with_mpi) {
+        bail!(
+            "train: started as one of {n} processes (mpirun or srun), but this skillaug was \
+             built without MPI; build it with `cargo build --release --features mpi` \
+             (README, \"Training on a cluster\") or start one process"
+        );
+    }
+    Ok(())
+}
+
 #[cfg(feature = "mpi")]
 pub use self::mpi_impl::Mpi;
 
@@ -289,5 +319,15 @@ mod tests {
         assert_eq!(fingerprint([&a[..]]), fingerprint([&a[..]]));
         // -0.0 and 0.0 compare equal but are different weights
         assert_ne!(fingerprint([&[0.0f32][..]]), fingerprint([&[-0.0f32][..]]));
+    }
+
+    #[test]
+    fn a_parallel_launch_of_a_build_without_mpi_is_refused() {
+        let e = refuse_launch(Some(4), false).unwrap_err().to_string();
+        assert!(e.contains("one of 4 processes"), "{e}");
+        assert!(e.contains("--features mpi"), "{e}");
+        refuse_launch(Some(4), true).unwrap();
+        refuse_launch(Some(1), false).unwrap();
+        refuse_launch(None, false).unwrap();
     }
 }

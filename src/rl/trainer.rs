@@ -295,6 +295,52 @@ impl<E: VecEnv> VecEnv for Timed<'_, E> {
     }
 }
 
+/// The history encoder of `cfg.he` (`None` without it) and the folder it was
+/// read from: `train.he_dir`, else the run folder `input`, whose clips it
+/// must have been pre-trained on.
+///
+/// # Errors
+/// A missing or unreadable encoder, or one of the input folder pre-trained
+/// on other clips than it holds now.
+pub fn history_encoder(
+    input: &Path,
+    cfg: &TrainConfig,
+    lib: &MotionLib,
+    dev: &candle_core::Device,
+) -> Result<Option<(HeRuntime, String)>> {
+    if !cfg.he {
+        return Ok(None);
+    }
+    let dir = if cfg.he_dir.is_empty() {
+        input.to_path_buf()
+    } else {
+        PathBuf::from(&cfg.he_dir)
+    };
+    let enc = crate::nn::he::load(&dir, dev)?;
+    // an encoder in the input folder was made from its clips; one from
+    // another folder (`he_dir`) is the user's choice
+    if cfg.he_dir.is_empty() {
+        let id = crate::table::ingest_id(&input.join("clips.parquet"))?;
+        if let Some(e) = enc
+            .cfg
+            .ingest_id
+            .as_ref()
+            .filter(|e| crate::table::ingest_ids_differ(e, &id))
+        {
+            bail!(
+                "{}/he.config.json: the history encoder was pre-trained on other clips \
+                 (ingest id {e}) than {} holds now ({id}): run `skillaug pretrain-he` again",
+                dir.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(Some((
+        HeRuntime::new(enc, lib, dev)?,
+        dir.display().to_string(),
+    )))
+}
+
 /// Hash of the settings a checkpoint may be resumed with (all but
 /// `train.samples`) and the seed.
 ///

@@ -1,272 +1,19 @@
-//! `skillaug eval`: success rates of a trained policy (paper Section 5;
-//! reference code: Ingrid789/SkillMimic-V2
-//! `skillmimic/learning/skillmimic_players.py` and `skillmimic/metric/`): SR,
-//! TSR, ε-NSR and NR, over trials run in parallel with deterministic actions
-//! (σ = 0) and the frozen encoder.
-//!
-//! - SR: start at a random reference frame of skill A (frames [2, F − 2],
-//!   uniform), condition = A, judged by A's rule ([`crate::eval::rules`])
-//!   over a trial of the rule's length (600 policy steps = 10 s for
-//!   BallPlay), no early termination.
-//! - TSR: start at a frame of A, condition = B, B's rule (BallPlay pairs
-//!   DL→DR, DF→DR, DF→Shot, Layup→DF; Locomotion Getup→Run, Run→Getup).
-//! - ε-NSR: as SR from a start perturbed within the training ε
-//!   (`[sample-stf]` radii of the policy), or for ParaHome the
-//!   object-centric perturbation (yaw U[−45°, 45°], up to 10 cm).
-//! - NR: mean SM reward per step from RSI starts until the reference clip
-//!   ends, for every method (also DM-trained ones).
+//! `skillaug eval`: success rates of a trained policy ([`crate::eval::evaluator`]:
+//! SR, TSR, ε-NSR and NR over trials run in parallel with deterministic
+//! actions).
 //!
 //! Outputs: `eval_trials.parquet` (one row per trial) and
 //! `eval_summary.parquet` (one row per cell with 95 % Wilson intervals),
-//! and a printed table.
+//! `eval_rollouts.parquet` with `--record N`, and a printed table.
 
 use super::Common;
-use crate::augment::stf::StfParams;
-use crate::eval::rules::{Judge, Rule};
-use crate::motion::MotionLib;
-use crate::reward::DatasetKind;
-use crate::rl::config::{PolicyMeta, TrainConfig};
-use crate::rl::humanoid::{EnvConfig, HeRuntime, MaskedReward};
-use crate::rl::trainer::{environment_with, start_params, Setup};
-use crate::rl::{Agent, VecEnv};
-use crate::table::rollout::RolloutStep;
+use crate::eval::evaluator::{load_policy, plan_cells, EvalConfig, Evaluator};
+use crate::eval::method_label;
+use crate::rl::humanoid::HeRuntime;
+use crate::rl::trainer::Setup;
 use crate::table::{self, eval as etable};
-use anyhow::{bail, ensure, Context, Result};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
-
-/// Settings of the `[eval]` recipe table.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct EvalConfig {
-    /// Trials per cell (the paper: 10,000).
-    pub trials: usize,
-    /// Environments run in parallel.
-    pub envs: usize,
-    /// Which metrics: any of "sr", "tsr", "nsr", "nr".
-    pub metrics: Vec<String>,
-    /// Trial length override of the sr, nsr and tsr trials, policy steps
-    /// (0 = each rule's own: 600 for BallPlay, 200-400 for ParaHome); nr
-    /// trials follow their reference to its end whatever this says.
-    pub steps: usize,
-    /// Row label of this policy in reports ("" = from its switches, e.g. "SM+STF").
-    pub label: String,
-    /// Keep the first `record` finished trials of each cell step by step in
-    /// `eval_rollouts.parquet` (for `skillaug view --rollouts`); 0: none.
-    pub record: usize,
-}
-
-impl crate::config::Validate for EvalConfig {
-    fn validate(&self, stage: &str) -> Result<()> {
-        let c = crate::config::Check::new(stage);
-        c.count("trials", self.trials as u64, 1, 1 << 32)?;
-        c.count("envs", self.envs as u64, 1, 1 << 20)?;
-        c.count("steps", self.steps as u64, 0, 1 << 24)?;
-        c.count("record", self.record as u64, 0, self.trials as u64)?;
-        c.holds(!self.metrics.is_empty(), || {
-            "metrics = []: give at least one of sr, tsr, nsr, nr".into()
-        })?;
-        for m in &self.metrics {
-            c.holds(["sr", "tsr", "nsr", "nr"].contains(&m.as_str()), || {
-                format!("metrics: unknown metric `{m}` (sr, tsr, nsr, nr)")
-            })?;
-        }
-        Ok(())
-    }
-}
-
-impl Default for EvalConfig {
-    fn default() -> Self {
-        EvalConfig {
-            trials: 100,
-            envs: 50,
-            metrics: vec!["sr".into(), "tsr".into(), "nsr".into(), "nr".into()],
-            steps: 0,
-            label: String::new(),
-            record: 0,
-        }
-    }
-}
-
-/// The transition pairs of Table 1 / Table 5 (from, to) present in `skills`.
-pub fn tsr_pairs(kind: DatasetKind, skills: &[String]) -> Vec<(String, String)> {
-    let all: &[(&str, &str)] = match kind {
-        DatasetKind::BallPlay => &[
-            ("lrun", "rrun"),
-            ("run", "rrun"),
-            ("run", "shot"),
-            ("layup", "run"),
-        ],
-        DatasetKind::Locomotion => &[("getup", "run_no_object"), ("run_no_object", "getup")],
-        DatasetKind::ParaHome => &[],
-    };
-    all.iter()
-        .filter(|(a, b)| skills.iter().any(|s| s == a) && skills.iter().any(|s| s == b))
-        .map(|(a, b)| (a.to_string(), b.to_string()))
-        .collect()
-}
-
-pub use crate::eval::method_label;
-
-/// Target ball height of a shot: the reference ball height at the highest
-/// frame of the skill's first clip (the `layup_target` of
-/// Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/skillmimic1.py`).
-fn shot_target(lib: &MotionLib, skill: &str) -> f32 {
-    let Some(&c) = lib.clips_of(skill).first() else {
-        return 0.0;
-    };
-    let f = &lib.frames[c];
-    (0..f.frames)
-        .filter(|i| f.valid[*i] && f.n_objects > 0)
-        .map(|i| f.obj_pos[3 * f.n_objects * i + 2])
-        .fold(f32::NEG_INFINITY, f32::max)
-}
-
-/// One evaluation cell: its metric, start and target skills, rule (None:
-/// NR, the mean SM reward per unmasked step) and environment settings.
-struct Cell {
-    metric: &'static str,
-    from: String,
-    to: String,
-    rule: Option<Rule>,
-    env: EnvConfig,
-}
-
-/// What every cell of one evaluation shares.
-struct Evaluator<'a> {
-    setup: Setup,
-    base_stf: StfParams,
-    train: &'a TrainConfig,
-    agent: &'a Agent,
-    he: Option<HeRuntime>,
-    cfg: &'a EvalConfig,
-}
-
-impl Evaluator<'_> {
-    /// `trials` episodes of the environment of `cell`, started in the clips
-    /// of `cell.from`.
-    fn run_cell(
-        &self,
-        cell: &Cell,
-        seed: u64,
-    ) -> Result<(Vec<etable::TrialRow>, Vec<RolloutStep>)> {
-        let s = &self.setup;
-        let clips: Vec<usize> = s
-            .clips
-            .iter()
-            .copied()
-            .filter(|c| s.lib.clips[*c].skill == cell.from)
-            .collect();
-        let mut tcfg = self.train.clone();
-        tcfg.stg = false;
-        tcfg.stf = false;
-        tcfg.nsi = cell.env.nsi_follow;
-        tcfg.p_n = 1.0;
-        tcfg.episode_length = 100_000; // follow the reference to its end
-        let stf = start_params(&tcfg, &self.base_stf);
-        let (cfg, n) = (self.cfg, self.cfg.envs.min(self.cfg.trials).max(1));
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut env = environment_with(
-            s,
-            &clips,
-            stf,
-            cell.env.clone(),
-            self.he.clone(),
-            n,
-            &mut rng,
-        )?;
-        ensure!(
-            env.obs_dim() == self.agent.obs_dim(),
-            "the policy takes {} observation values; this environment gives {}",
-            self.agent.obs_dim(),
-            env.obs_dim()
-        );
-        let mut recording = cfg.record > 0;
-        env.set_recording(recording);
-        let mut rows = Vec::with_capacity(cfg.trials);
-        let mut recorded = Vec::new();
-        let mut running: Vec<Vec<RolloutStep>> = vec![Vec::new(); n];
-        let mut judges: Vec<Option<Judge>> = (0..n).map(|_| cell.rule.map(Judge::new)).collect();
-        let mut sums = vec![(0.0f64, 0usize, 0usize); n];
-        // each environment runs trials in turn until `trials` have started
-        let mut started = n;
-        let mut active = vec![true; n];
-        while active.iter().any(|a| *a) {
-            let obs = env.observe();
-            let act = self.agent.act(&obs, true, &mut rng)?;
-            let r = env.step(&act.actions, &mut rng)?;
-            let mut recs = env.take_recorded();
-            for e in 0..n {
-                if !active[e] {
-                    continue;
-                }
-                if let Some(j) = judges[e].as_mut() {
-                    j.update(&env.probes()[e]);
-                }
-                sums[e].2 += 1;
-                if let Some(sm) = env.sm_rewards()[e] {
-                    sums[e].0 += sm;
-                    sums[e].1 += 1;
-                }
-                if let Some(rec) = recs.get_mut(e).and_then(Option::take) {
-                    running[e].push(RolloutStep {
-                        metric: cell.metric.to_string(),
-                        from: cell.from.clone(),
-                        to: cell.to.clone(),
-                        trial: 0,
-                        step: sums[e].2 as u32,
-                        reference: rec.reference,
-                        masked: rec.reference.is_none(),
-                        sm_reward: env.sm_rewards()[e],
-                        posture: rec.posture,
-                    });
-                }
-                if r.terminated[e] || r.truncated[e] {
-                    let trial = rows.len() as u32;
-                    let steps = std::mem::take(&mut running[e]);
-                    if (trial as usize) < cfg.record {
-                        recorded.extend(steps.into_iter().map(|s| RolloutStep { trial, ..s }));
-                    }
-                    rows.push(etable::TrialRow {
-                        metric: cell.metric.to_string(),
-                        from: cell.from.clone(),
-                        to: cell.to.clone(),
-                        trial,
-                        success: judges[e].as_ref().map(Judge::success),
-                        steps: sums[e].2 as u32,
-                        mean_sm: if sums[e].1 > 0 {
-                            sums[e].0 / sums[e].1 as f64
-                        } else {
-                            f64::NAN
-                        },
-                        final_root_z: env.probes()[e].root[2],
-                        down_step: judges[e]
-                            .as_ref()
-                            .and_then(Judge::down_step)
-                            .map(|d| d as u32),
-                    });
-                    sums[e] = (0.0, 0, 0);
-                    judges[e] = cell.rule.map(Judge::new);
-                    if started < cfg.trials {
-                        started += 1;
-                    } else {
-                        active[e] = false;
-                    }
-                }
-            }
-            // trial numbers follow the finishing order: once `record`
-            // trials have finished, no running trial will be kept
-            if recording && rows.len() >= cfg.record {
-                recording = false;
-                env.set_recording(false);
-                running.iter_mut().for_each(Vec::clear);
-            }
-        }
-        Ok((rows, recorded))
-    }
-}
+use anyhow::Result;
+use std::path::Path;
 
 /// Run the stage. `policy` is a `skillaug train` output folder.
 pub fn run(common: &Common, policy: &Path) -> Result<()> {
@@ -274,144 +21,15 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
     let _lock = common.lock_output("eval")?;
     let input = common.input_dir();
     let lib = table::load_library(input)?;
-    let mp = policy.join("policy.meta.json");
-    let meta: PolicyMeta = serde_json::from_slice(&std::fs::read(&mp).with_context(|| {
-        format!(
-            "cannot read {}: give the output folder of `skillaug train` (--policy)",
-            mp.display()
-        )
-    })?)
-    .with_context(|| format!("{} is not a skillaug policy description", mp.display()))?;
-    let agent = Agent::load(
-        &policy.join("policy.safetensors"),
-        &candle_core::Device::Cpu,
-    )?;
-    let dataset = &lib.clips[0].dataset;
-    if *dataset != meta.dataset || lib.skeleton.name() != meta.skeleton {
-        bail!(
-            "the policy in {} was trained on dataset `{}` ({}); {} holds `{}` ({})",
-            policy.display(),
-            meta.dataset,
-            meta.skeleton,
-            input.display(),
-            dataset,
-            lib.skeleton.name()
-        );
-    }
-    for c in &meta.clips {
-        if !lib.clips.iter().any(|r| &r.name == c) {
-            bail!(
-                "the policy was trained on clip `{c}`, which {} does not hold (its skills: {})",
-                input.display(),
-                lib.skills().join(", ")
-            );
-        }
-    }
-    let he_dir = match &meta.he_dir {
-        Some(d) => {
-            let p = PathBuf::from(d);
-            if !p.join("he.safetensors").is_file() {
-                bail!(
-                    "the policy uses a history encoder, expected at {}/he.safetensors: not found \
-                     (run `skillaug pretrain-he --out {d}`, or keep the training run folder)",
-                    p.display()
-                );
-            }
-            Some(p)
-        }
-        None => None,
-    };
-    let kind = DatasetKind::of_library(&lib);
+    let (meta, agent, he_dir) = load_policy(policy, &lib, input)?;
     let label = if cfg.label.is_empty() {
         method_label(&meta.train)
     } else {
         cfg.label.clone()
     };
-    let t = &meta.train;
-    let base = EnvConfig {
-        early_termination: false,
-        masked_reward: MaskedReward::Zero,
-        reward: crate::reward::RewardOptions {
-            contacts: t.contacts,
-            contact_detect: t.contact_detect,
-            contact_radius: t.contact_radius,
-            root_rot: t.root_rot,
-            smoothness: t.smoothness,
-        },
-        ..EnvConfig::training(t.method)
-    };
-    let class_of = |skill: &str| -> u32 {
-        lib.clips
-            .iter()
-            .find(|c| c.skill == skill)
-            .map_or(0, |c| c.class as u32)
-    };
-    let steps = |r: Rule| {
-        if cfg.steps > 0 {
-            cfg.steps
-        } else {
-            r.trial_steps()
-        }
-    };
-    let want = |m: &str| cfg.metrics.iter().any(|x| x == m);
-    let cell = |metric, from: &str, to: &str, rule: Option<Rule>, env: EnvConfig| Cell {
-        metric,
-        from: from.to_string(),
-        to: to.to_string(),
-        rule,
-        env,
-    };
-    let mut cells = Vec::new();
-    for skill in &meta.skills {
-        let rule = Rule::of_skill(skill, shot_target(&lib, skill));
-        if let Some(r) = rule {
-            let trial = EnvConfig {
-                fixed_length: Some(steps(r)),
-                ..base.clone()
-            };
-            if want("sr") {
-                cells.push(cell("sr", skill, skill, rule, trial.clone()));
-            }
-            if want("nsr") {
-                let parahome = kind == DatasetKind::ParaHome;
-                let env = EnvConfig {
-                    object_perturb: parahome,
-                    nsi_follow: !parahome,
-                    ..trial
-                };
-                cells.push(cell("nsr", skill, skill, rule, env));
-            }
-        }
-        if want("nr") {
-            cells.push(cell("nr", skill, skill, None, base.clone()));
-        }
-    }
-    if want("tsr") {
-        for (a, b) in tsr_pairs(kind, &meta.skills) {
-            let Some(r) = Rule::of_skill(&b, shot_target(&lib, &b)) else {
-                continue;
-            };
-            let env = EnvConfig {
-                fixed_length: Some(steps(r)),
-                condition: Some(class_of(&b)),
-                ..base.clone()
-            };
-            cells.push(cell("tsr", &a, &b, Some(r), env));
-        }
-    }
-    let mut warned = std::collections::BTreeSet::new();
-    for c in &cells {
-        if let (Some(r), Some(n)) = (c.rule, c.env.fixed_length) {
-            if n < r.min_steps() && warned.insert(c.to.clone()) {
-                eprintln!(
-                    "warning: eval.steps = {n}: {} trials are shorter than its success rule \
-                     needs ({} steps; its own length is {}): every one is scored as a failure",
-                    c.to,
-                    r.min_steps(),
-                    r.trial_steps()
-                );
-            }
-        }
+    let (cells, warnings) = plan_cells(&cfg, &meta, &lib);
+    for w in warnings {
+        eprintln!("warning: {w}");
     }
     let dataset = lib.clips[0].dataset.clone();
     let mut tcfg = meta.train.clone();
@@ -419,7 +37,7 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
     tcfg.stg = false;
     let setup = Setup::from_library(
         lib,
-        common.input_dir(),
+        input,
         common.args.data_root.as_deref(),
         &tcfg,
         &meta.stf,
@@ -440,18 +58,7 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         he,
         cfg: &cfg,
     };
-    let mut rows = Vec::new();
-    let mut recorded = Vec::new();
-    for (k, c) in cells.iter().enumerate() {
-        let seed = common
-            .args
-            .seed
-            .wrapping_mul(1_000_003)
-            .wrapping_add(k as u64 + 1);
-        let (r, rec) = ev.run_cell(c, seed)?;
-        rows.extend(r);
-        recorded.extend(rec);
-    }
+    let (rows, recorded) = ev.run_all(&cells, common.args.seed)?;
     let summary = etable::summarise(&label, &rows)?;
     let resolved = common.resolved_toml("eval", &cfg)?;
     let tmeta = table::Meta::new(&dataset, &resolved)
@@ -486,27 +93,4 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         );
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn labels_and_pairs_follow_the_tables() {
-        let mut t = TrainConfig::default();
-        assert_eq!(method_label(&t), "SM");
-        t.nsi = true;
-        assert_eq!(method_label(&t), "SM+eNSI");
-        t.stf = true;
-        t.stg = true;
-        t.ats = true;
-        t.he = true;
-        assert_eq!(method_label(&t), "SM+STG+STF+ATS+HE");
-        let skills: Vec<String> = ["layup", "lrun", "rrun", "run", "shot"]
-            .map(String::from)
-            .to_vec();
-        assert_eq!(tsr_pairs(DatasetKind::BallPlay, &skills).len(), 4);
-        assert_eq!(tsr_pairs(DatasetKind::BallPlay, &skills[..2]).len(), 0);
-    }
 }

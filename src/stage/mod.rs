@@ -45,6 +45,18 @@ impl Common {
             let _ = rayon::ThreadPoolBuilder::new()
                 .num_threads(n)
                 .build_global();
+            // candle's CPU matmul splits its work for RAYON_NUM_THREADS, else
+            // for every physical core (candle-core `src/utils.rs`,
+            // `get_num_threads`), whatever the pool holds: with `--threads 1`
+            // per MPI rank on two cores it split for two and the PPO update
+            // ran 3.5 times slower (docs/training.md, "Data-parallel
+            // training"). Written once, when the first stage of the process
+            // starts (before the pool's threads run anything); `skillaug run`
+            // creates a stage per step with the same value.
+            let v = n.to_string();
+            if std::env::var("RAYON_NUM_THREADS").ok().as_deref() != Some(v.as_str()) {
+                std::env::set_var("RAYON_NUM_THREADS", v);
+            }
         }
         let recipe = match &args.recipe {
             Some(p) => Recipe::load(p)?,

@@ -1,43 +1,25 @@
-//! `skillaug train`: PPO ([`crate::rl`]) on the rapier3d humanoid
-//! ([`crate::rl::humanoid`]) with the SM or DM reward and every component of
-//! the method as a switch (`--nsi --stg --stf --ats --he`), so the baselines
-//! and the ablations of Tables 1 and 3 are one program with different
-//! recipes.
-//!
-//! Sizes come from a preset that explicit keys override: `preset = "cpu"`
-//! (default: 128 environments x 32 steps = 4,096 samples per iteration,
-//! two 256-256 networks, minibatch 2,048, lr 1e-4, measured to learn on two
-//! cores: on the DF clips, seed 0, the mean SM reward per step at 2M
-//! samples was 0.129 with 512 x 32 / minibatch 4,096, 0.149 with 256 x 32,
-//! and 0.187 with 128 x 32 / minibatch 2,048, the last at about the same
-//! samples/s; `stages/df-run.toml`) or `"paper"` (Table 6 and the configs of
-//! Ingrid789/SkillMimic-V2, `skillmimic/data/cfg/skillmimic.yaml` and
-//! `skillmimic/data/cfg/train/rlg/skillmimic.yaml`: 2,048 x 32 = 65,536
-//! samples, 1024-512-512 networks, minibatch 16,384, lr 2e-5). Both use 6
-//! mini-epochs, γ 0.99, λ 0.95, clip 0.2 and the fixed σ 0.055.
-//!
-//! The neighbourhood radii, τ, N_max, the ATS exponents and the other STF
-//! settings are read from the recipe's `[sample-stf]` table (one recipe
-//! drives both stages); the switches set p_e (`--stg`) and p_n (`--nsi`,
-//! `--stf`), from `train.p_e` / `train.p_n` (Table 7: 0.1 each).
-//!
-//! Outputs in `--out`: `train_metrics.parquet` (one row per iteration,
-//! `skillaug schema train_metrics`), `policy.safetensors` + `policy.json`
-//! (the final agent), `train.resolved.toml`, and `checkpoint/` (agent,
-//! optimiser moments, normaliser, RNG state, ATS table, episode tracker,
-//! metrics so far and the running episodes as start + actions), written
-//! every `checkpoint_every` iterations by write-then-rename. `--resume`
-//! continues from it and gives the same iterations as an uninterrupted run
-//! with the same seed and thread count.
+//! `skillaug train`: PPO on the rapier3d humanoid with the SM or DM reward
+//! and every component of the method as a switch (`--nsi --stg --stf --ats
+//! --he`), so the baselines and the ablations of Tables 1 and 3 are one
+//! program with different recipes. The trainer is [`crate::rl::trainer`];
+//! this stage resolves the settings (the `[train]` table, with the
+//! `[sample-stf]` table for the start settings), drives the loop with a
+//! progress bar and writes the outputs: `train_metrics.parquet` (one row per
+//! iteration, `skillaug schema train_metrics`), `policy.safetensors` +
+//! `policy.json` + `policy.meta.json`, `train.resolved.toml`, and
+//! `checkpoint/` every `checkpoint_every` iterations, from which `--resume`
+//! continues exactly. Presets and measured settings: docs/training.md.
+//! Started by `mpirun`/`srun` with the `mpi` feature, it runs as one rank of
+//! a data-parallel job ([`crate::rl::comm`]; rank 0 writes).
 
 use super::Common;
-use crate::rl::comm::{Comm, Solo};
-use crate::rl::humanoid::{HeRuntime, Method};
-use crate::rl::trainer::{Setup, Trainer};
+use crate::rl::comm::Comm;
+use crate::rl::humanoid::Method;
+use crate::rl::trainer::{history_encoder, Setup, Trainer};
 use crate::rl::VecEnv;
 use crate::table::{self, train::MetricRow};
-use anyhow::{bail, Context, Result};
-use std::path::{Path, PathBuf};
+use anyhow::{Context, Result};
+use std::path::Path;
 
 pub use crate::rl::config::{PolicyMeta, PpoOverrides, Preset, TrainConfig};
 
@@ -74,32 +56,6 @@ pub fn setup(common: &Common, cfg: &TrainConfig) -> Result<Setup> {
     )
 }
 
-/// The ranks of this process: MPI when a launcher started it and the `mpi`
-/// feature is built, else one process.
-fn ranks() -> Result<Box<dyn Comm>> {
-    let launched = crate::rl::comm::launcher_size();
-    refuse_launch(launched, cfg!(feature = "mpi"))?;
-    #[cfg(feature = "mpi")]
-    if launched.is_some() {
-        return Ok(Box::new(crate::rl::comm::Mpi::init()?));
-    }
-    Ok(Box::new(Solo))
-}
-
-/// Refuse a launch as one of several processes (`launched`, from
-/// [`crate::rl::comm::launcher_size`]) by a build without MPI: each process
-/// would train alone and all would write the same folder.
-fn refuse_launch(launched: Option<usize>, built_with_mpi: bool) -> Result<()> {
-    if let Some(n) = launched.filter(|n| *n > 1 && !built_with_mpi) {
-        bail!(
-            "train: started as one of {n} processes (mpirun or srun), but this skillaug was \
-             built without MPI; build it with `cargo build --release --features mpi` \
-             (README, \"Training on a cluster\") or start one process"
-        );
-    }
-    Ok(())
-}
-
 fn write_metrics(out: &Path, rows: &[MetricRow], resolved: &str, dataset: &str) -> Result<()> {
     let meta = table::Meta::new(dataset, resolved);
     let mut o = super::Outputs::new(out)?;
@@ -111,50 +67,9 @@ fn write_metrics(out: &Path, rows: &[MetricRow], resolved: &str, dataset: &str) 
     o.commit()
 }
 
-/// The history encoder of `cfg.he`: from `train.he_dir`, else from the
-/// input folder, whose clips it must have been pre-trained on.
-fn history_encoder(
-    common: &Common,
-    cfg: &TrainConfig,
-    s: &Setup,
-    dev: &candle_core::Device,
-) -> Result<Option<(HeRuntime, String)>> {
-    if !cfg.he {
-        return Ok(None);
-    }
-    let dir = if cfg.he_dir.is_empty() {
-        common.input_dir().to_path_buf()
-    } else {
-        PathBuf::from(&cfg.he_dir)
-    };
-    let enc = crate::nn::he::load(&dir, dev)?;
-    // an encoder in the input folder was made from its clips; one from
-    // another folder (`he_dir`) is the user's choice
-    if cfg.he_dir.is_empty() {
-        let id = table::ingest_id(&common.input_dir().join("clips.parquet"))?;
-        if let Some(e) = enc
-            .cfg
-            .ingest_id
-            .as_ref()
-            .filter(|e| table::ingest_ids_differ(e, &id))
-        {
-            bail!(
-                "{}/he.config.json: the history encoder was pre-trained on other clips \
-                 (ingest id {e}) than {} holds now ({id}): run `skillaug pretrain-he` again",
-                dir.display(),
-                common.input_dir().display()
-            );
-        }
-    }
-    Ok(Some((
-        HeRuntime::new(enc, &s.lib, dev)?,
-        dir.display().to_string(),
-    )))
-}
-
 /// Run the stage.
 pub fn run(common: &Common, sw: &Switches) -> Result<()> {
-    let comm = ranks()?;
+    let comm = crate::rl::comm::world()?;
     let r = run_ranks(common, sw, comm.as_ref());
     if let Err(e) = &r {
         comm.abort_on_error(e);
@@ -186,7 +101,7 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
         &cfg,
         &stf_cfg,
     )?;
-    let (he, he_dir) = match history_encoder(common, &cfg, &s, &dev)? {
+    let (he, he_dir) = match history_encoder(common.input_dir(), &cfg, &s.lib, &dev)? {
         Some((h, d)) => (Some(h), Some(d)),
         None => (None, None),
     };
@@ -313,19 +228,4 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
         }
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::refuse_launch;
-
-    #[test]
-    fn a_parallel_launch_of_a_build_without_mpi_is_refused() {
-        let e = refuse_launch(Some(4), false).unwrap_err().to_string();
-        assert!(e.contains("one of 4 processes"), "{e}");
-        assert!(e.contains("--features mpi"), "{e}");
-        refuse_launch(Some(4), true).unwrap();
-        refuse_launch(Some(1), false).unwrap();
-        refuse_launch(None, false).unwrap();
-    }
 }
