@@ -31,6 +31,14 @@ use cli::{Cli, Command};
 
 /// Run one parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
+    if let Some(n) = rl::comm::launcher_size().filter(|n| *n > 1) {
+        if !matches!(cli.command, Command::Train(_)) {
+            anyhow::bail!(
+                "started as one of {n} processes (mpirun or srun): only `skillaug train` runs \
+                 over MPI ranks; run this command as one process"
+            );
+        }
+    }
     match cli.command {
         Command::Run(a) => stage::run::run(&a.file, a.common),
         Command::Ingest(a) => stage::ingest::run(&stage::Common::new(a.common)?, a.skip_bad),

@@ -23,12 +23,13 @@
 set -euo pipefail
 cd "${SLURM_SUBMIT_DIR:-.}"
 
-RANKS=$((SLURM_NNODES * SLURM_NTASKS_PER_NODE))   # 32
+RANKS=$SLURM_NTASKS   # 32
 # 64 environments per rank: 2,048 in all, the paper preset's count (Table 6)
 ENVS=$((64 * RANKS))
 
-# srun starts the ranks through PMIx; with Open MPI's own launcher use
-#   mpirun -np "$RANKS" --map-by ppr:"$SLURM_NTASKS_PER_NODE":node ...
+# srun starts the ranks through PMIx; with Open MPI's own launcher give each
+# rank its cores (Open MPI binds a rank to one core by default):
+#   mpirun -np "$RANKS" --map-by ppr:8:node:PE="$SLURM_CPUS_PER_TASK" ...
 srun --mpi=pmix --cpu-bind=cores \
     target/release/skillaug train \
     --from runs/bp --out runs/df-cluster \

@@ -149,3 +149,26 @@ fn bench_settings_are_checked_before_any_work() {
     let err = fails(&["bench", "sim", "--set", "sim.pgs_iterations=\"two\""]);
     assert!(err.contains("sim.pgs_iterations"), "{err}");
 }
+
+#[test]
+fn commands_other_than_train_refuse_to_start_as_one_of_several_processes() {
+    // what mpirun (OMPI_COMM_WORLD_SIZE) and srun (SLURM_STEP_NUM_TASKS) announce
+    for var in ["OMPI_COMM_WORLD_SIZE", "SLURM_STEP_NUM_TASKS"] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("bp");
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_skillaug"))
+            .args(["ingest", "--dataset", "ballplay", "--out"])
+            .arg(&out)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .env(var, "2")
+            .output()
+            .unwrap();
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains("one of 2 processes") && err.contains("only `skillaug train`"),
+            "{err}"
+        );
+        assert!(!out.exists(), "nothing is written");
+    }
+}

@@ -849,6 +849,7 @@ mod tests {
             stf: StfConfig::default(),
             iterations: 0,
             samples: 0,
+            ranks: 1,
         }
     }
 

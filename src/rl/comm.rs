@@ -264,12 +264,22 @@ mod mpi_impl {
             Ok(split(&buf, &counts, &displs))
         }
         fn abort_on_error(&self, err: &anyhow::Error) {
+            use std::io::Write;
             if self.world.size() > 1 {
-                eprintln!(
-                    "error: rank {} of {}: {err:#}",
+                // An error of the settings or the inputs is met by every
+                // rank at once: rank 0 reports it and aborts, which ends the
+                // others before their own reports (they wait 0.5 s); a rank
+                // that fails alone reports after that wait.
+                if self.world.rank() > 0 {
+                    std::thread::sleep(std::time::Duration::from_millis(500));
+                }
+                let line = format!(
+                    "error: rank {} of {}: {err:#}\n",
                     self.world.rank(),
                     self.world.size()
                 );
+                // one write, so that two ranks' lines do not interleave
+                let _ = std::io::stderr().lock().write_all(line.as_bytes());
                 self.world.abort(1)
             }
         }

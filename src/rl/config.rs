@@ -342,4 +342,16 @@ pub struct PolicyMeta {
     pub iterations: u64,
     /// Samples trained.
     pub samples: u64,
+    /// MPI ranks it was trained on (1: one process; older descriptions
+    /// without the field were one process).
+    #[serde(default = "one_rank", skip_serializing_if = "is_one")]
+    pub ranks: usize,
+}
+
+fn one_rank() -> usize {
+    1
+}
+
+fn is_one(n: &usize) -> bool {
+    *n == 1
 }

@@ -900,25 +900,28 @@ impl<'a> Trainer<'a> {
         };
         let tmp = out.join("checkpoint.tmp");
         let old = out.join("checkpoint.old");
+        let at = |p: &Path| format!("checkpoint: cannot write {}", p.display());
         if tmp.exists() {
-            std::fs::remove_dir_all(&tmp)?;
+            std::fs::remove_dir_all(&tmp).with_context(|| at(&tmp))?;
         }
-        std::fs::create_dir_all(&tmp)?;
+        std::fs::create_dir_all(&tmp).with_context(|| at(&tmp))?;
         self.agent.save(&tmp.join("agent.safetensors"))?;
         for (r, bytes) in actions.iter().enumerate() {
-            std::fs::write(tmp.join(episodes_file(r)), bytes)?;
+            let p = tmp.join(episodes_file(r));
+            std::fs::write(&p, bytes).with_context(|| at(&p))?;
         }
-        std::fs::write(tmp.join("state.json"), serde_json::to_vec(&st)?)?;
+        let p = tmp.join("state.json");
+        std::fs::write(&p, serde_json::to_vec(&st)?).with_context(|| at(&p))?;
         let dir = ckpt_dir(out);
         if dir.exists() {
             if old.exists() {
-                std::fs::remove_dir_all(&old)?;
+                std::fs::remove_dir_all(&old).with_context(|| at(&old))?;
             }
-            std::fs::rename(&dir, &old)?;
+            std::fs::rename(&dir, &old).with_context(|| at(&old))?;
         }
-        std::fs::rename(&tmp, &dir)?;
+        std::fs::rename(&tmp, &dir).with_context(|| at(&dir))?;
         if old.exists() {
-            std::fs::remove_dir_all(&old)?;
+            std::fs::remove_dir_all(&old).with_context(|| at(&old))?;
         }
         Ok(())
     }
@@ -946,6 +949,7 @@ impl<'a> Trainer<'a> {
             stf: stf.clone(),
             iterations: self.iteration,
             samples: self.samples,
+            ranks: self.comm.size(),
         }
     }
 }

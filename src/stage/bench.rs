@@ -298,14 +298,14 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
     let common = super::Common::new(stage_args(out.clone(), "ballplay", data_root))?;
     super::ingest::run(&common, false)?;
     println!(
-        "{:<26} {:>10} {:>14} {:>9} {:>12} {:>8} {:>10}   ({} threads, {repeat} iterations each)",
+        "{:<26} {:>10} {:>14} {:>9} {:>12} {:>10} {:>13}   ({} threads; medians of {repeat} iterations after one more)",
         "preset",
         "samples/s",
         "sim-only bound",
         "of bound",
         "sim us/samp",
-        "act us",
-        "update us",
+        "act us/samp",
+        "update us/samp",
         rayon::current_num_threads()
     );
     for (name, preset, envs) in [
@@ -330,8 +330,9 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
             &crate::nn::device("cpu")?,
         )?;
         let mut tracker = EpisodeTracker::new(cfg.envs());
-        let (mut sim, mut act, mut upd, mut total, mut samples) = (0.0, 0.0, 0.0, 0.0, 0usize);
-        for _ in 0..repeat {
+        let (mut sim, mut act, mut upd, mut total) = (vec![], vec![], vec![], vec![]);
+        // one iteration more than timed: the first warms caches and the allocator
+        for i in 0..=repeat {
             let t0 = Instant::now();
             let mut timed = Timed {
                 env: &mut env,
@@ -342,21 +343,24 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
             let c = t0.elapsed().as_secs_f64();
             let t1 = Instant::now();
             agent.update(&ro, &mut rng)?;
-            upd += t1.elapsed().as_secs_f64();
-            sim += sim_s;
-            act += c - sim_s;
-            total += t0.elapsed().as_secs_f64();
-            samples += cfg.envs() * cfg.steps();
+            if i > 0 {
+                upd.push(t1.elapsed().as_secs_f64());
+                sim.push(sim_s);
+                act.push(c - sim_s);
+                total.push(t0.elapsed().as_secs_f64());
+            }
         }
-        let us = |x: f64| 1e6 * x / samples as f64;
+        let samples = (cfg.envs() * cfg.steps()) as f64;
+        let (sim, act, upd, total) = (median(sim), median(act), median(upd), median(total));
+        let us = |x: f64| 1e6 * x / samples;
         // the simulation-only bound: samples/s if the environments' steps
         // (timed inside the same iterations) were all an iteration did
-        let bound = samples as f64 / sim;
+        let bound = samples / sim;
         println!(
-            "{name:<26} {:>10.0} {:>14.0} {:>8.0}% {:>12.0} {:>8.0} {:>10.0}",
-            samples as f64 / total,
+            "{name:<26} {:>10.0} {:>14.0} {:>8.0}% {:>12.0} {:>10.0} {:>13.0}",
+            samples / total,
             bound,
-            100.0 * (samples as f64 / total) / bound,
+            100.0 * (samples / total) / bound,
             us(sim),
             us(act),
             us(upd),
