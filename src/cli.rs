@@ -1,6 +1,6 @@
 //! Command-line definitions (clap). One subcommand per stage, plus helpers.
 
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 
 /// skillaug: robust interaction skills from sparse, noisy demonstrations.
@@ -108,11 +108,41 @@ pub struct SchemaArgs {
     pub name: String,
 }
 
+/// The benchmarks of `skillaug bench`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Bench {
+    /// Ingest every shipped dataset.
+    Ingest,
+    /// Physics steps/s and accuracy of the humanoid.
+    Sim,
+    /// Whole PPO iterations: samples/s and the simulation-only bound.
+    Train,
+}
+
+/// The training reward of `--method`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum MethodArg {
+    /// SkillMimic's multiplicative reward.
+    Sm,
+    /// DeepMimic's additive reward.
+    Dm,
+}
+
+/// The length unit of `--units`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum UnitsArg {
+    /// Metres.
+    M,
+    /// Centimetres.
+    Cm,
+}
+
 /// `skillaug bench`.
 #[derive(Debug, Args)]
 pub struct BenchArgs {
-    /// Benchmark name: ingest, sim or train.
-    pub name: String,
+    /// Benchmark.
+    #[arg(value_enum)]
+    pub name: Bench,
     /// Repetitions; the median is reported.
     #[arg(long, default_value_t = 5)]
     pub repeat: usize,
@@ -285,8 +315,8 @@ pub struct ExportArgs {
     #[arg(long, value_name = "DIR")]
     pub bvh: Option<PathBuf>,
     /// Length unit of the BVH offsets and root positions.
-    #[arg(long, value_name = "m|cm", default_value = "cm", requires = "bvh")]
-    pub units: String,
+    #[arg(long, value_enum, default_value_t = UnitsArg::Cm, requires = "bvh")]
+    pub units: UnitsArg,
     /// Write one glTF binary file (.glb) with one animation per clip, trajectory or trial.
     #[arg(long, value_name = "FILE")]
     pub gltf: Option<PathBuf>,
@@ -308,8 +338,8 @@ pub struct TrainArgs {
     #[allow(missing_docs)]
     pub common: StageArgs,
     /// Training reward: sm (SkillMimic) or dm (DeepMimic); overrides train.method.
-    #[arg(long, value_name = "sm|dm")]
-    pub method: Option<String>,
+    #[arg(long, value_enum)]
+    pub method: Option<MethodArg>,
     /// epsilon-NSI: neighbourhood starts without the connection rule.
     #[arg(long)]
     pub nsi: bool,

@@ -48,12 +48,10 @@ pub fn run(cli: Cli) -> Result<()> {
             stage::pretrain_he::run(&stage::Common::new(a.common)?, a.device.as_deref())
         }
         Command::Train(a) => {
-            let method = match a.method.as_deref() {
-                None => None,
-                Some("sm") => Some(rl::humanoid::Method::Sm),
-                Some("dm") => Some(rl::humanoid::Method::Dm),
-                Some(o) => anyhow::bail!("--method {o}: expected sm or dm"),
-            };
+            let method = a.method.map(|m| match m {
+                cli::MethodArg::Sm => rl::humanoid::Method::Sm,
+                cli::MethodArg::Dm => rl::humanoid::Method::Dm,
+            });
             let sw = stage::train::Switches {
                 method,
                 nsi: a.nsi,
@@ -100,6 +98,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => stage::schema::run(&a.name),
         Command::Export(a) => stage::export::run(&a),
-        Command::Bench(a) => stage::bench::run(&a.name, a.repeat, a.data_root, &a.set),
+        Command::Bench(a) => stage::bench::run(a.name, a.repeat, a.data_root, &a.set),
     }
 }

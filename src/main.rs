@@ -2,7 +2,12 @@ use clap::Parser;
 
 fn main() {
     keep_freed_memory();
-    let cli = skillaug::cli::Cli::parse();
+    // a command-line error exits 1 like every other error (clap's own exit
+    // code for it is 2); help and version exit 0
+    let cli = skillaug::cli::Cli::try_parse().unwrap_or_else(|e| {
+        let _ = e.print();
+        std::process::exit(if e.use_stderr() { 1 } else { 0 })
+    });
     if let Err(e) = skillaug::run(cli) {
         eprintln!("error: {e:#}");
         std::process::exit(1);

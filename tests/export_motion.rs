@@ -820,7 +820,10 @@ fn bad_selections_fail_clearly_and_write_nothing() {
     let err = refused(&["--clip", "99"]);
     assert!(err.contains("no clip `99`"), "{err}");
     let err = refused(&["--clip", "0", "--units", "mm"]);
-    assert!(err.contains("--units mm"), "{err}");
+    assert!(
+        err.contains("'mm'") && err.contains("--units") && err.contains("m, cm"),
+        "{err}"
+    );
 
     // a rollouts table without recorded steps
     let ev = dir.path().join("ev");

@@ -28,7 +28,7 @@
 //! penetration and the joint anchor gap. `--set sim.KEY=VALUE` benches other
 //! physics settings (the `[sim]` keys of a training recipe).
 
-use crate::cli::StageArgs;
+use crate::cli::{Bench, StageArgs};
 use crate::motion::state::State;
 use crate::sim::mjcf::Model;
 use crate::sim::vec_env::VecEnv;
@@ -41,20 +41,19 @@ use std::time::Instant;
 const DATASETS: [&str; 4] = ["ballplay", "ballplay-m", "locomotion", "parahome"];
 
 /// Run benchmark `what`.
-pub fn run(what: &str, repeat: usize, data_root: Option<PathBuf>, sets: &[String]) -> Result<()> {
+pub fn run(what: Bench, repeat: usize, data_root: Option<PathBuf>, sets: &[String]) -> Result<()> {
     let sets = sets
         .iter()
         .map(|s| crate::config::SetArg::parse_for(s, &["sim"]))
         .collect::<Result<Vec<_>>>()?;
-    if what != "sim" && !sets.is_empty() {
+    if what != Bench::Sim && !sets.is_empty() {
         bail!("only `bench sim` takes --set (sim.* keys)");
     }
     let opts: SimOptions = crate::config::resolve(&crate::config::Recipe::default(), "sim", &sets)?;
     match what {
-        "ingest" => ingest(repeat.max(1), data_root),
-        "sim" => sim(repeat.max(1), data_root, &opts),
-        "train" => train(repeat.max(1), data_root),
-        other => bail!("unknown benchmark `{other}` (known: ingest, sim, train)"),
+        Bench::Ingest => ingest(repeat.max(1), data_root),
+        Bench::Sim => sim(repeat.max(1), data_root, &opts),
+        Bench::Train => train(repeat.max(1), data_root),
     }
 }
 

@@ -73,10 +73,9 @@ fn export(a: &ExportArgs, created: &mut Vec<PathBuf>) -> Result<()> {
         let Some(from) = &a.from else {
             bail!("export --bvh/--gltf needs --from RUN (a run folder with clips.parquet)");
         };
-        let units = match a.units.as_str() {
-            "m" => Units::Metres,
-            "cm" => Units::Centimetres,
-            other => bail!("--units {other}: expected m or cm"),
+        let units = match a.units {
+            crate::cli::UnitsArg::M => Units::Metres,
+            crate::cli::UnitsArg::Cm => Units::Centimetres,
         };
         let lib = crate::table::load_library(from)?;
         let root = crate::dataset::data_root(a.data_root.as_deref())?;
