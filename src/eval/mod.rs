@@ -1,7 +1,9 @@
 //! Evaluation: the evaluator of `skillaug eval` ([`evaluator`]), success
-//! rules ([`rules`]) and the statistics of its tables ([`wilson`]).
+//! rules ([`rules`]), the statistics of its tables ([`wilson`]) and the
+//! paper-shaped tables of `skillaug report` ([`report`]).
 
 pub mod evaluator;
+pub mod report;
 pub mod rules;
 
 /// Wilson score interval of `k` successes in `n` trials at 95 %.
