@@ -6,6 +6,7 @@
 //! (measured: saturated outputs), and runs must repeat for a seed.
 
 pub mod he;
+pub mod he_train;
 
 use anyhow::{bail, Result};
 use candle_core::{Device, Tensor, Var};

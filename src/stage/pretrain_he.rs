@@ -1,233 +1,16 @@
 //! `skillaug pretrain-he`: pre-train the history encoder by behaviour cloning
-//! on the ingested reference clips (paper Appendix B.5, Eq. 23; reference code:
-//! Ingrid789/SkillMimic-V2 `skillmimic/utils/state_prediction_ballplay.py`;
-//! networks in [`crate::nn::he`]).
+//! on the ingested reference clips ([`crate::nn::he_train`]; paper Appendix
+//! B.5, Eq. 23) and write `he.safetensors`, `he.config.json`,
+//! `he_loss.parquet` and `he_embeddings.parquet`.
 
 use super::{Common, Outputs};
-use crate::nn::he::{self, HeConfig, HistoryEncoder, Predictor};
-use crate::nn::{self, Params};
-use crate::table::{self, he::LossRow};
-use crate::{motion::MotionLib, progress};
-use anyhow::{bail, Context, Result};
-use candle_core::{Device, Tensor};
-use candle_nn::{AdamW, Optimizer, ParamsAdamW};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
+use crate::nn::he_train::{pretrain, HeSettings};
+use crate::{nn, progress, table};
+use anyhow::{Context, Result};
 use std::io::IsTerminal;
 use std::time::Instant;
 
-/// Settings of the `[pretrain-he]` recipe table.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct HeSettings {
-    /// Optimiser steps.
-    pub steps: usize,
-    /// Windows per minibatch.
-    pub batch_size: usize,
-    /// Adam learning rate (no weight decay).
-    pub lr: f64,
-    /// Weight of the prediction term (Eq. 23).
-    pub lambda_a: f64,
-    /// Weight of the embedding regulariser (Eq. 23).
-    pub lambda_b: f64,
-    /// History length k, frames.
-    pub history: usize,
-    /// Embedding size mu.
-    pub embedding: usize,
-    /// Convolution channels.
-    pub conv: Vec<usize>,
-    /// Convolution kernel.
-    pub kernel: usize,
-    /// Predictor hidden sizes.
-    pub predictor_hidden: Vec<usize>,
-    /// `cpu`, or `cuda` / `cuda:N` (cargo feature `cuda`).
-    pub device: String,
-    /// Print a plain progress line every this many steps when stderr is not a terminal.
-    pub log_every: usize,
-}
-
-impl crate::config::Validate for HeSettings {
-    fn validate(&self, stage: &str) -> Result<()> {
-        let c = crate::config::Check::new(stage);
-        c.count("steps", self.steps as u64, 1, u32::MAX as u64)?;
-        c.count("batch_size", self.batch_size as u64, 1, 1 << 20)?;
-        c.positive("lr", self.lr)?;
-        c.non_negative("lambda_a", self.lambda_a)?;
-        c.non_negative("lambda_b", self.lambda_b)?;
-        c.count("history", self.history as u64, 1, 10_000)?;
-        c.holds(self.embedding == 3, || {
-            format!(
-                "embedding = {}: only mu = 3 is supported (Table 6)",
-                self.embedding
-            )
-        })?;
-        c.count("kernel", self.kernel as u64, 1, self.history as u64)?;
-        c.holds(
-            !self.conv.is_empty() && self.conv.iter().all(|&n| n > 0),
-            || {
-                format!(
-                    "conv = {:?}: needs at least one layer, every size > 0",
-                    self.conv
-                )
-            },
-        )?;
-        c.holds(self.predictor_hidden.iter().all(|&n| n > 0), || {
-            format!(
-                "predictor_hidden = {:?}: every size must be > 0",
-                self.predictor_hidden
-            )
-        })?;
-        c.count("log_every", self.log_every as u64, 1, u64::MAX)
-    }
-}
-
-impl Default for HeSettings {
-    fn default() -> Self {
-        HeSettings {
-            steps: 600,
-            batch_size: 128,
-            lr: 1e-3,
-            lambda_a: 1.0,
-            lambda_b: 1e-5,
-            history: 60,
-            embedding: 3,
-            conv: vec![128, 64, 32],
-            kernel: 3,
-            predictor_hidden: vec![1024, 512, 512],
-            device: "cpu".into(),
-            log_every: 100,
-        }
-    }
-}
-
-/// Training windows: (clip, frame t) with frames t and t+1 present.
-fn samples(feats: &[Vec<Option<Vec<f32>>>]) -> Vec<(usize, usize)> {
-    let mut v = Vec::new();
-    for (c, f) in feats.iter().enumerate() {
-        for t in 0..f.len().saturating_sub(1) {
-            if f[t].is_some() && f[t + 1].is_some() {
-                v.push((c, t));
-            }
-        }
-    }
-    v
-}
-
-struct Batch {
-    windows: Tensor,
-    current: Tensor,
-    target: Tensor,
-    cond: Tensor,
-}
-
-fn batch(
-    idx: &[(usize, usize)],
-    feats: &[Vec<Option<Vec<f32>>>],
-    lib: &MotionLib,
-    cfg: &HeConfig,
-    dev: &Device,
-) -> Result<Batch> {
-    let (k, c, n) = (cfg.history, cfg.channels, idx.len());
-    let mut w = Vec::with_capacity(n * k * c);
-    let mut cur = Vec::with_capacity(n * c);
-    let mut tgt = Vec::with_capacity(n * c);
-    let mut classes = Vec::with_capacity(n);
-    for &(clip, t) in idx {
-        w.extend(he::window(&feats[clip], t, k, c));
-        // `samples` only lists t where frames t and t + 1 are both present.
-        cur.extend_from_slice(feats[clip][t].as_ref().expect("sample frame present"));
-        tgt.extend_from_slice(feats[clip][t + 1].as_ref().expect("next frame present"));
-        classes.push(lib.clips[clip].class as u32);
-    }
-    Ok(Batch {
-        windows: Tensor::from_vec(w, (n, k, c), dev)?,
-        current: Tensor::from_vec(cur, (n, c), dev)?,
-        target: Tensor::from_vec(tgt, (n, c), dev)?,
-        cond: he::one_hot(&classes, cfg.condition_slots, dev)?,
-    })
-}
-
-/// Embeddings of every present frame: `(clip, frame, h)`.
-fn embed_all(
-    enc: &HistoryEncoder,
-    feats: &[Vec<Option<Vec<f32>>>],
-    dev: &Device,
-) -> Result<Vec<(usize, usize, [f32; 3])>> {
-    let frames: Vec<(usize, usize)> = feats
-        .iter()
-        .enumerate()
-        .flat_map(|(c, f)| {
-            (0..f.len())
-                .filter(move |t| f[*t].is_some())
-                .map(move |t| (c, t))
-        })
-        .collect();
-    let (k, ch) = (enc.cfg.history, enc.cfg.channels);
-    let mut out = Vec::with_capacity(frames.len());
-    for chunk in frames.chunks(256) {
-        let mut w = Vec::with_capacity(chunk.len() * k * ch);
-        for &(c, t) in chunk {
-            w.extend(he::window(&feats[c], t, k, ch));
-        }
-        let h = enc
-            .encode(&Tensor::from_vec(w, (chunk.len(), k, ch), dev)?)?
-            .to_vec2::<f32>()?;
-        for (&(c, t), row) in chunk.iter().zip(h) {
-            let mut a = [0f32; 3];
-            for (d, x) in a.iter_mut().zip(row.iter()) {
-                *d = *x;
-            }
-            out.push((c, t, a));
-        }
-    }
-    Ok(out)
-}
-
-/// Between-skill over within-skill variance of embeddings (larger = the
-/// skills are better separated).
-pub fn separation(emb: &[(usize, usize, [f32; 3])], lib: &MotionLib) -> f64 {
-    let skills = lib.skills();
-    let mut sums = vec![([0f64; 3], 0f64); skills.len()];
-    let mut all = [0f64; 3];
-    let skill_of = |c: usize| {
-        skills
-            .iter()
-            .position(|s| *s == lib.clips[c].skill)
-            .unwrap_or(0)
-    };
-    for (c, _, h) in emb {
-        let s = &mut sums[skill_of(*c)];
-        for d in 0..3 {
-            s.0[d] += h[d] as f64;
-            all[d] += h[d] as f64;
-        }
-        s.1 += 1.0;
-    }
-    let n = emb.len().max(1) as f64;
-    let mean = all.map(|x| x / n);
-    let means: Vec<[f64; 3]> = sums
-        .iter()
-        .map(|(s, m)| s.map(|x| x / m.max(1.0)))
-        .collect();
-    let between: f64 = sums
-        .iter()
-        .zip(&means)
-        .map(|((_, m), mu)| m * (0..3).map(|d| (mu[d] - mean[d]).powi(2)).sum::<f64>())
-        .sum::<f64>()
-        / n;
-    let within: f64 = emb
-        .iter()
-        .map(|(c, _, h)| {
-            let mu = means[skill_of(*c)];
-            (0..3).map(|d| (h[d] as f64 - mu[d]).powi(2)).sum::<f64>()
-        })
-        .sum::<f64>()
-        / n;
-    between / within.max(1e-30)
-}
-
-/// Run the stage.
+/// Run the stage; `device_flag` is `--device`.
 pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
     let started = Instant::now();
     let mut set: HeSettings = common.settings("pretrain-he")?;
@@ -237,89 +20,32 @@ pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
     let _lock = common.lock_output("pretrain-he")?;
     let dev = nn::device(&set.device)?;
     let lib = table::load_library(common.input_dir())?;
-    let n_objects = lib.frames.iter().map(|f| f.n_objects).max().unwrap_or(0);
-    let (mean, std) = he::standardisation(&lib, n_objects);
-    let cfg = HeConfig {
-        version: 1,
-        skeleton: lib.skeleton.name().into(),
-        n_objects,
-        channels: he::channels(lib.skeleton, n_objects),
-        history: set.history,
-        embedding: set.embedding,
-        conv: set.conv.clone(),
-        kernel: set.kernel,
-        predictor_hidden: set.predictor_hidden.clone(),
-        condition_slots: crate::motion::library::CONDITION_SLOTS,
-        feature_layout: he::layout_text(lib.skeleton, n_objects),
-        mean,
-        std,
-        ingest_id: Some(table::ingest_id(&common.input_dir().join("clips.parquet"))?)
-            .filter(|id| !id.is_empty()),
-    };
-    let feats = he::clip_features(&lib, &cfg);
-    let samples = samples(&feats);
-    if samples.is_empty() {
-        bail!(
-            "{}: no pair of consecutive frames to learn from",
-            common.input_dir().display()
-        );
-    }
-
-    let mut rng = ChaCha8Rng::seed_from_u64(common.args.seed);
-    let mut params = Params::default();
-    let enc = HistoryEncoder::new(cfg.clone(), &mut params, &mut rng, &dev)?;
-    let pred = Predictor::new(&cfg, &mut params, &mut rng, &dev)?;
-    let untrained = embed_all(&enc, &feats, &dev)?;
-    let sep_before = separation(&untrained, &lib);
-    let mut opt = AdamW::new(
-        params.all(),
-        ParamsAdamW {
-            lr: set.lr,
-            weight_decay: 0.0,
-            ..Default::default()
-        },
-    )?;
-
+    let ingest_id = Some(table::ingest_id(&common.input_dir().join("clips.parquet"))?)
+        .filter(|id| !id.is_empty());
     let quiet = common.args.quiet;
     let bar = progress::bar(set.steps as u64, "pretrain-he", quiet);
     let plain = !quiet && !std::io::stderr().is_terminal();
-    let mut curve = Vec::with_capacity(set.steps);
-    for step in 0..set.steps {
-        let idx: Vec<(usize, usize)> = (0..set.batch_size)
-            .map(|_| samples[rng.random_range(0..samples.len())])
-            .collect();
-        let b = batch(&idx, &feats, &lib, &cfg, &dev)?;
-        let h = enc.encode(&b.windows)?;
-        let predicted = pred.predict(&b.cond, &b.current, &h)?;
-        let prediction = (predicted - &b.target)?.sqr()?.mean_all()?;
-        let reg = h.sqr()?.sum(1)?.mean_all()?;
-        let total = ((&prediction * set.lambda_a)? + (&reg * set.lambda_b)?)?;
-        opt.backward_step(&total)?;
-        let row = LossRow {
-            step: step as u32,
-            total: total.to_scalar::<f32>()? as f64,
-            prediction: prediction.to_scalar::<f32>()? as f64,
-            regulariser: reg.to_scalar::<f32>()? as f64,
-        };
-        if !row.total.is_finite() {
-            bail!(
-                "pretrain-he diverged at step {step} (loss {}); lower pretrain-he.lr",
-                row.total
-            );
-        }
-        bar.set_message(format!("loss {:.4}", row.total));
-        bar.inc(1);
-        if plain && (step % set.log_every.max(1) == 0 || step + 1 == set.steps) {
-            eprintln!(
-                "pretrain-he step {step:>6}/{}: loss {:.5} (prediction {:.5})",
-                set.steps, row.total, row.prediction
-            );
-        }
-        curve.push(row);
-    }
+    let p = pretrain(
+        &lib,
+        common.input_dir(),
+        &set,
+        ingest_id,
+        common.args.seed,
+        &dev,
+        |step, row| {
+            bar.set_message(format!("loss {:.4}", row.total));
+            bar.inc(1);
+            if plain && (step % set.log_every.max(1) == 0 || step + 1 == set.steps) {
+                eprintln!(
+                    "pretrain-he step {step:>6}/{}: loss {:.5} (prediction {:.5})",
+                    set.steps, row.total, row.prediction
+                );
+            }
+        },
+    )?;
     bar.finish_and_clear();
-    let trained = embed_all(&enc, &feats, &dev)?;
-    let sep_after = separation(&trained, &lib);
+    let (cfg, curve, trained) = (&p.cfg, &p.curve, &p.trained);
+    let (sep_before, sep_after) = p.separation;
     let secs = started.elapsed().as_secs_f64();
 
     // Outputs.
@@ -336,18 +62,13 @@ pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
         .map(|(c, t, h)| (*c as u32, *t as u32, lib.clips[*c].skill.clone(), *h))
         .collect();
     let mut out = Outputs::new(&common.args.out)?;
-    let named: std::collections::HashMap<String, Tensor> = params
-        .tensors("encoder.")
-        .into_iter()
-        .chain(params.tensors("predictor."))
-        .collect();
-    out.with_path("he.safetensors", |p| {
-        candle_core::safetensors::save(&named, p).context("writing he.safetensors")
+    out.with_path("he.safetensors", |path| {
+        candle_core::safetensors::save(&p.named, path).context("writing he.safetensors")
     })?;
-    out.text("he.config.json", &serde_json::to_string_pretty(&cfg)?)?;
+    out.text("he.config.json", &serde_json::to_string_pretty(cfg)?)?;
     out.parquet(
         "he_loss.parquet",
-        &table::he::loss_batch(&curve)?,
+        &table::he::loss_batch(curve)?,
         &meta.table("he_loss"),
     )?;
     out.parquet(
