@@ -460,7 +460,7 @@ fn plot_draws_every_table_kind() {
     }
     // each bar is the number of the graph's edges with that N (counted
     // here from the edges as the stage reads them, not through polars)
-    let hist = skillaug::stage::plot::n_histogram(&stg).unwrap();
+    let hist = skillaug::table::series::n_histogram(&stg).unwrap();
     let mut counted = std::collections::BTreeMap::<u32, u32>::new();
     for e in skillaug::table::stg::read(&stg).unwrap() {
         *counted.entry(e.n_masked).or_default() += 1;

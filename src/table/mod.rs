@@ -16,6 +16,7 @@ pub mod he;
 pub mod io;
 pub mod read_util;
 pub mod rollout;
+pub mod series;
 pub mod stf;
 pub mod stg;
 pub mod train;
