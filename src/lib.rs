@@ -13,6 +13,7 @@ pub mod config;
 pub mod dataset;
 pub mod eval;
 pub mod export;
+pub mod ingest;
 pub mod motion;
 pub mod nn;
 pub mod plot;

@@ -124,7 +124,7 @@ fn shipped_recipes_resolve() {
         let p = e.unwrap().path();
         if p.extension().is_some_and(|x| x == "toml") {
             let r = skillaug::config::Recipe::load(&p).unwrap();
-            skillaug::config::resolve::<skillaug::stage::ingest::IngestConfig>(&r, "ingest", &[])
+            skillaug::config::resolve::<skillaug::ingest::IngestConfig>(&r, "ingest", &[])
                 .unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
             skillaug::config::resolve::<skillaug::stage::build_stg::StgConfig>(
                 &r,

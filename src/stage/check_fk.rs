@@ -6,9 +6,9 @@
 //! BallPlay and Locomotion to a few centimetres (the capture skeleton's limb
 //! lengths differ from the model's).
 
-use super::ingest::{clip_set, ingest_clip, IngestConfig};
 use super::Common;
 use crate::dataset;
+use crate::ingest::{clip_set, ingest_clip, IngestConfig};
 use crate::sim::mjcf::Model;
 use crate::sim::{SimOptions, World};
 use anyhow::{Context, Result};
@@ -30,7 +30,12 @@ pub struct FkError {
 /// FK errors of every clip the arguments select.
 pub fn errors(common: &Common) -> Result<Vec<FkError>> {
     let cfg: IngestConfig = common.settings("ingest")?;
-    let set = clip_set(common, &cfg)?;
+    let set = clip_set(
+        common.args.dataset.as_deref(),
+        common.args.from.as_deref(),
+        common.args.data_root.as_deref(),
+        &cfg,
+    )?;
     let root = dataset::data_root(common.args.data_root.as_deref())?;
     let clips = set
         .clips
