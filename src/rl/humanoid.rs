@@ -28,9 +28,9 @@
 //!   same step, of the unmasked environments tracking the same clip (else of
 //!   all unmasked ones, else 0), the reference code's rule
 //!   (`skillmimic1_rand.py`), so they neither reward nor punish the value
-//!   estimate; `masked-reward = "zero"` gives 0 instead. They are left out of
+//!   estimate; `train.masked_reward = "zero"` gives 0 instead. They are left out of
 //!   the reported mean rewards.
-//! - Episodes: at most T = `horizon` policy steps (60); a fall (root below
+//! - Episodes: at most T = `train.episode_length` policy steps (60); a fall (root below
 //!   0.3 m after the first step, or a per-skill height) terminates except for
 //!   class 0 (Getup) (`humanoid_task.py`, `skillmimic1_unified.py`); so does a
 //!   tracking failure when its thresholds are set ([`tracking_lost`]: mean

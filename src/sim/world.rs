@@ -269,7 +269,7 @@ pub struct ContactReport {
 }
 
 impl ContactReport {
-    /// The reward's contact indicators (paper Eq. 16 and the rule of
+    /// The reward's contact indicators (paper Eq. 17 and the rule of
     /// SkillMimic-V2 `skillmimic/env/tasks/skillmimic1.py`):
     /// object 0 against hands (by `detect`; `radius` in m for the
     /// proximity rule) and body, hands against body (touching at any
