@@ -108,20 +108,18 @@ pub fn launcher_size() -> Option<usize> {
     .find_map(|k| std::env::var(k).ok()?.trim().parse::<usize>().ok())
 }
 
-/// FNV-1a over the bit patterns of `values` (a cheap fingerprint of the
-/// weights for [`Comm::check_identical`]; a cryptographic hash is not
-/// needed to see two ranks diverge).
+/// A hash of the bit patterns of `values` (a fingerprint of the weights for
+/// [`Comm::check_identical`]): std's `DefaultHasher` with its fixed keys,
+/// the same on every rank of one binary.
 pub fn fingerprint<'a>(values: impl IntoIterator<Item = &'a [f32]>) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    use std::hash::Hasher;
+    let mut h = std::hash::DefaultHasher::new();
     for v in values {
         for x in v {
-            for b in x.to_bits().to_le_bytes() {
-                h ^= b as u64;
-                h = h.wrapping_mul(0x0100_0000_01b3);
-            }
+            h.write_u32(x.to_bits());
         }
     }
-    h
+    h.finish()
 }
 
 /// The ranks of this process: MPI when a launcher started it and the `mpi`
