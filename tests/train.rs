@@ -281,6 +281,19 @@ fn bad_inputs_are_refused_with_what_is_missing() {
     ));
     let m = metrics(&out);
     assert_eq!(m[0].1.len(), 2);
+    // a fresh run into the folder would replace its checkpoint: refused,
+    // and the run is left as it was
+    let before = std::fs::read(out.join("checkpoint/state.json")).unwrap();
+    let e = fails(&train_args(from, o, &["--set", "train.samples=32"]));
+    assert!(
+        e.contains("holds a training checkpoint at iteration 2") && e.contains("--resume"),
+        "{e}"
+    );
+    assert_eq!(
+        std::fs::read(out.join("checkpoint/state.json")).unwrap(),
+        before
+    );
+    assert_eq!(metrics(&out)[0].1.len(), 2);
 }
 
 #[test]

@@ -448,6 +448,38 @@ fn records_of(dir: &Path, file: &str, episodes: &[EpisodeMeta]) -> Result<Vec<Ep
     Ok(recs)
 }
 
+/// Refuse to start a fresh run in `out` when it holds a checkpoint (a
+/// killed run that `--resume` would continue, or a finished one): starting
+/// over would replace it.
+///
+/// # Errors
+/// When `out/checkpoint/` (or `checkpoint.old/`, a swap cut short) holds a
+/// checkpoint; the error says at which iteration and how to go on.
+pub fn refuse_to_replace(out: &Path) -> Result<()> {
+    for d in [ckpt_dir(out), out.join("checkpoint.old")] {
+        let sp = d.join("state.json");
+        if !sp.is_file() {
+            continue;
+        }
+        let at = std::fs::read(&sp)
+            .ok()
+            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+            .map(|v| {
+                format!(
+                    " at iteration {} ({} samples)",
+                    v["iteration"], v["samples"]
+                )
+            })
+            .unwrap_or_default();
+        bail!(
+            "{} holds a training checkpoint{at}: add --resume to continue that run, \
+             or give another --out (or remove the folder) to start a new one",
+            out.display()
+        );
+    }
+    Ok(())
+}
+
 /// Read the checkpoint of `out` (`checkpoint/`, or `checkpoint.old/` when
 /// a swap was interrupted): the agent, the state and rank `rank`'s part.
 fn load_checkpoint(

@@ -113,6 +113,9 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
     let resolved = common.resolved_toml("train", &cfg)?;
     let seed = common.args.seed;
     let quiet = common.args.quiet || !root;
+    if !sw.resume {
+        crate::rl::trainer::refuse_to_replace(&out)?;
+    }
     let mut t = if sw.resume {
         Trainer::resume(&s, &cfg, &stf_cfg, he, seed, &dev, comm, &out)?
     } else {
