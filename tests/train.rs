@@ -273,6 +273,10 @@ fn bad_inputs_are_refused_with_what_is_missing() {
         &["--set", "train.samples=64", "--resume", "--ats"],
     ));
     assert!(e.contains("settings differ"), "{e}");
+    assert!(
+        e.contains("train.ats = true (the checkpoint: false)"),
+        "{e}"
+    );
     // but a larger budget resumes
     ok(&train_args(
         from,

@@ -357,6 +357,64 @@ pub fn settings_hash(cfg: &TrainConfig, stf_cfg: &StfConfig, seed: u64) -> Resul
     Ok(crate::config::hash_text(&text))
 }
 
+/// The settings a checkpoint may be resumed with, as TOML (`train`
+/// without `samples`, `sample-stf`, `seed`), kept in the checkpoint so that
+/// a refused resume can name what changed.
+fn resume_settings(cfg: &TrainConfig, stf_cfg: &StfConfig, seed: u64) -> Result<String> {
+    let mut c = cfg.clone();
+    c.samples = 0;
+    let mut t = toml::Table::new();
+    t.insert("train".into(), toml::Value::try_from(&c)?);
+    t.insert("sample-stf".into(), toml::Value::try_from(stf_cfg)?);
+    t.insert("seed".into(), toml::Value::Integer(seed as i64));
+    Ok(toml::to_string(&t)?)
+}
+
+/// `key = value` of every leaf of `v` under `prefix`.
+fn leaves(prefix: &str, v: &toml::Value, out: &mut std::collections::BTreeMap<String, String>) {
+    match v {
+        toml::Value::Table(t) => {
+            for (k, x) in t {
+                let key = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                leaves(&key, x, out);
+            }
+        }
+        other => {
+            out.insert(prefix.to_string(), other.to_string());
+        }
+    }
+}
+
+/// The keys whose values differ between two [`resume_settings`] texts, as
+/// `key = now (the checkpoint: then)`, at most `max` of them.
+fn changed_keys(then: &str, now: &str, max: usize) -> Vec<String> {
+    let flat = |text: &str| {
+        let mut m = std::collections::BTreeMap::new();
+        if let Ok(t) = text.parse::<toml::Table>() {
+            leaves("", &toml::Value::Table(t), &mut m);
+        }
+        m
+    };
+    let (a, b) = (flat(then), flat(now));
+    let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+    keys.into_iter()
+        .filter(|k| a.get(*k) != b.get(*k))
+        .take(max)
+        .map(|k| {
+            let show = |v: Option<&String>| v.cloned().unwrap_or_else(|| "(not set)".into());
+            format!(
+                "{k} = {} (the checkpoint: {})",
+                show(b.get(k)),
+                show(a.get(k))
+            )
+        })
+        .collect()
+}
+
 /// One rank's part of a checkpoint.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct RankState {
@@ -387,6 +445,10 @@ struct TrainerState {
     /// Ranks 1.. of a data-parallel run (absent for one process).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     ranks: Vec<RankState>,
+    /// The settings behind `settings_hash` ([`resume_settings`]; absent in
+    /// checkpoints of older versions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    settings: Option<String>,
 }
 
 /// A running episode without its actions (those go to `episodes.bin`).
@@ -568,6 +630,9 @@ pub struct Trainer<'a> {
     iteration: u64,
     samples: u64,
     hash: String,
+    /// The `[sample-stf]` settings and the seed (for the checkpoint).
+    stf_cfg: StfConfig,
+    seed: u64,
     /// Every rank's ATS table after the last iteration (several ranks only).
     ats_base: Option<Ats>,
     /// The behaviour cloning before PPO of a fresh start.
@@ -647,6 +712,8 @@ impl<'a> Trainer<'a> {
             iteration: 0,
             samples: 0,
             hash: settings_hash(cfg, stf_cfg, seed)?,
+            stf_cfg: stf_cfg.clone(),
+            seed,
             ats_base: None,
             warm_start,
         };
@@ -677,12 +744,22 @@ impl<'a> Trainer<'a> {
         let n = Self::local_envs(cfg, comm)?;
         let hash = settings_hash(cfg, stf_cfg, seed)?;
         let (agent, st, part, recs) = load_checkpoint(out, dev, comm.rank(), comm.size())?;
-        ensure!(
-            st.settings_hash == hash,
-            "--resume: the settings differ from those of the checkpoint in {} \
-             (only train.samples may change); start a new --out instead",
-            out.display()
-        );
+        if st.settings_hash != hash {
+            let now = resume_settings(cfg, stf_cfg, seed)?;
+            let changed: String = st
+                .settings
+                .as_deref()
+                .map(|then| changed_keys(then, &now, 8))
+                .unwrap_or_default()
+                .iter()
+                .map(|c| format!("\n  {c}"))
+                .collect();
+            bail!(
+                "--resume: the settings differ from those of the checkpoint in {} \
+                 (only train.samples may change); start a new --out instead{changed}",
+                out.display()
+            );
+        }
         let mut throwaway = ChaCha8Rng::seed_from_u64(seed);
         let mut env = environment(s, cfg, he, n, &mut throwaway)?;
         env.restore(recs)?;
@@ -710,6 +787,8 @@ impl<'a> Trainer<'a> {
             iteration: st.iteration,
             samples: st.samples,
             hash,
+            stf_cfg: stf_cfg.clone(),
+            seed,
             ats_base,
             warm_start: None,
         };
@@ -929,6 +1008,7 @@ impl<'a> Trainer<'a> {
             metrics: self.metrics.clone(),
             episodes: part.episodes,
             ranks: others,
+            settings: Some(resume_settings(&self.cfg, &self.stf_cfg, self.seed)?),
         };
         let tmp = out.join("checkpoint.tmp");
         let old = out.join("checkpoint.old");
@@ -1017,6 +1097,23 @@ fn ats_records(b: &[u8]) -> Result<Vec<(usize, usize, f64)>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_changed_setting_is_named() {
+        let (a, mut b) = (TrainConfig::default(), TrainConfig::default());
+        b.ppo.lr = Some(1e-3);
+        b.samples = 99; // not a resume setting
+        let stf = StfConfig::default();
+        let then = resume_settings(&a, &stf, 1).unwrap();
+        let now = resume_settings(&b, &stf, 1).unwrap();
+        let c = changed_keys(&then, &now, 8);
+        assert_eq!(c, vec!["train.ppo.lr = 0.001 (the checkpoint: (not set))"]);
+        assert_eq!(
+            changed_keys(&then, &resume_settings(&a, &stf, 2).unwrap(), 8),
+            vec!["seed = 2 (the checkpoint: 1)"]
+        );
+        assert!(changed_keys(&then, &then, 8).is_empty());
+    }
 
     #[test]
     fn ats_records_travel_exactly() {
