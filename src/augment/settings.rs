@@ -1,6 +1,10 @@
 //! The settings of the `[sample-stf]` recipe table ([`StfConfig`]), which
 //! both `skillaug sample-stf` and the trainer's STF starts read (one recipe
-//! drives both), and their translation into the library's parameters.
+//! drives both), and their translation into the library's parameters. The
+//! trainer takes p_e, p_n and the trajectory length T from its own table
+//! instead (`train.p_e`, `train.p_n`, `train.episode_length`, with the
+//! switches; `crate::rl::trainer::start_params`): there `sample-stf.p_e`,
+//! `p_n` and `horizon` have no effect.
 
 use crate::augment::ats::{AtsParams, Update};
 use crate::augment::stf::{Connect, Eps, Noise, Order, Search, StfParams};

@@ -27,7 +27,7 @@
 //!    the centroid frame (RSI) or the edge's target frame (STG) is compared
 //!    first and wins ties, so an unperturbed RSI start connects to itself
 //!    with β = 1 exactly and N = 0.
-//! 5. **Masked states**: N = [`super::n_masked`](β) (Eq. 20). When β <= τ
+//! 5. **Masked states**: N = [`super::n_masked`]\(β) (Eq. 20). When β <= τ
 //!    there is no valid connection (B.4); the sampler then falls back to a
 //!    plain reference start (the RSI centroid unperturbed, or an ATS frame of
 //!    the clip for an STG start; β = 1, N = 0, `fallback = true`).

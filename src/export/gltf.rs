@@ -18,7 +18,7 @@
 //!   one triangle primitive in the body's frame; an object's collision shape
 //!   (what the simulation touches) in its own frame. The triangles come
 //!   from the viewer's mesh code ([`crate::view::bodies`],
-//!   [`crate::view::shape_mesh`]); normals are averaged over faces within
+//!   `crate::view::shape_mesh`); normals are averaged over faces within
 //!   40 degrees of each other, so curved surfaces shade smoothly and box
 //!   edges stay sharp. `POSITION` (with min/max) and `NORMAL` attributes,
 //!   `u16` indices (`u32` for meshes of 65535 vertices or more), two

@@ -226,7 +226,7 @@ pub struct MlpInit {
 impl Mlp {
     /// The same outputs as [`Module::forward`], bit for bit, for an input
     /// `x` (`[B, in]`) that needs no gradient (observations): the first
-    /// layer's product goes through [`ConstInputMatmul`], whose backward
+    /// layer's product goes through `ConstInputMatmul`, whose backward
     /// pass gives the weight's gradient only. candle's matmul backward
     /// always computes the gradient of both operands (candle-core
     /// `src/backprop.rs`, `Op::Matmul`), and for the first layer the input's

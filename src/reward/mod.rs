@@ -171,7 +171,7 @@ pub enum ContactRule {
     Paper,
     /// Reference code (Ingrid789/SkillMimic-V2
     /// `skillmimic/env/tasks/skillmimic1.py`): body-contact penalty (weight
-    /// cg[2]) and ball contact vs. the flag (weight cg[0]).
+    /// cg\[2\]) and ball contact vs. the flag (weight cg\[0\]).
     Reference,
 }
 

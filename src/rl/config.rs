@@ -97,7 +97,7 @@ pub struct TrainConfig {
     pub fall_height_by_skill: std::collections::BTreeMap<String, f32>,
     /// Warm start: epochs of behaviour cloning of the policy mean onto the
     /// next reference frame's joint rotations before PPO (0 = off; see
-    /// [`HumanoidEnv::warm_start_data`]; on by default, docs/training.md).
+    /// [`crate::rl::humanoid::HumanoidEnv::warm_start_data`]; on by default, docs/training.md).
     pub warm_start_epochs: usize,
     /// ε-perturbed copies of each reference state in the warm-start data.
     pub warm_start_copies: usize,

@@ -13,11 +13,15 @@
 //! its coordinates are the exp-map triples of the data (docs/simulation.md).
 //!
 //! **Departures from the MJCF**, needed for impulse joints to be stable with
-//! the model's extreme mass ratios (docs/simulation.md; recorded in
-//! [`SimOptions`] and so in every resolved config):
+//! the model's extreme mass ratios (docs/simulation.md; fields of
+//! [`SimOptions`], whose defaults for the clips' frame rate,
+//! [`SimOptions::for_fps`], every training and evaluation uses, and which
+//! only `skillaug bench sim --set sim.KEY=VALUE` varies):
 //! the MJCF joint armature (0.02) is added as principal inertia of every
-//! non-root body, and non-hand bodies weigh at least `min_mass` (0.5 kg:
-//! this changes only the 5.6 g Chest sphere and the toes).
+//! non-root body, non-hand bodies weigh at least `min_mass` (0.5 kg: this
+//! changes only the 5.6 g Chest sphere and the toes), and hand bodies at
+//! least `hand_min_mass` (0.05 kg: every finger segment, 1.5-22 g in the
+//! model).
 //!
 //! **PD drives** (target = pi * action, docs/simulation.md): implicit, solved by the engine
 //! (`MotorModel::ForceBased` with the MJCF stiffness/damping as kp/kd,
@@ -60,7 +64,8 @@ use rapier3d::math::{Pose, Rotation, Vector};
 use rapier3d::prelude::*;
 use serde::{Deserialize, Serialize};
 
-/// Physics settings (recipe table `[sim]` in the stages that simulate).
+/// Physics settings: [`SimOptions::for_fps`] in training and evaluation;
+/// `skillaug bench sim --set sim.KEY=VALUE` tries others.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimOptions {

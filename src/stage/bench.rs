@@ -26,7 +26,8 @@
 //! ([`crate::sim::checks`]): the PD tracking error with the root held, and,
 //! under full-range random actions, the largest speed, the deepest ground
 //! penetration and the joint anchor gap. `--set sim.KEY=VALUE` benches other
-//! physics settings (the `[sim]` keys of a training recipe).
+//! physics settings (the fields of `SimOptions`; training and evaluation use
+//! their defaults).
 
 use crate::cli::{Bench, StageArgs};
 use crate::motion::state::State;

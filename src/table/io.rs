@@ -95,7 +95,7 @@ impl Staged {
     }
 
     /// Rename every staged file into place, each with the mode a new file
-    /// gets in its folder ([`fresh_file_mode`]), whichever writer made it
+    /// gets in its folder (`fresh_file_mode`), whichever writer made it
     /// (candle's safetensors writer renames a 0600 file of its own onto the
     /// temporary path).
     pub fn commit(self) -> Result<()> {
