@@ -2,7 +2,7 @@
 //!
 //! `skillaug train` runs as one process ([`Solo`]) or, built with the `mpi`
 //! cargo feature and started by `mpirun`/`srun`, as R MPI ranks
-//! ([`Mpi`], on the `mpi` crate over the system's MPI library). Every rank
+//! (`Mpi`, on the `mpi` crate over the system's MPI library). Every rank
 //! simulates its share of the environments; the trainer sums what the
 //! ranks must agree on through the [`Comm`] trait: gradients after each
 //! minibatch (the MPI Adam of DeepMimic, `xbpeng/DeepMimic`
