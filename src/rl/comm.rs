@@ -184,6 +184,17 @@ mod mpi_impl {
             })
         }
 
+        /// Element-wise `MPI_SUM` over the ranks, in place.
+        fn sum<T: Equivalence + Clone>(&self, buf: &mut [T]) -> Result<()> {
+            if buf.is_empty() {
+                return Ok(());
+            }
+            let send = buf.to_vec();
+            self.world
+                .all_reduce_into(&send[..], buf, SystemOperation::sum());
+            Ok(())
+        }
+
         fn counts(&self, len: usize) -> Result<(Vec<Count>, Vec<Count>)> {
             let n = self.world.size() as usize;
             let mut lens = vec![0u64; n];
@@ -233,22 +244,10 @@ mod mpi_impl {
             self.world.size() as usize
         }
         fn sum_f32(&self, buf: &mut [f32]) -> Result<()> {
-            if buf.is_empty() {
-                return Ok(());
-            }
-            let send = buf.to_vec();
-            self.world
-                .all_reduce_into(&send[..], buf, SystemOperation::sum());
-            Ok(())
+            self.sum(buf)
         }
         fn sum_f64(&self, buf: &mut [f64]) -> Result<()> {
-            if buf.is_empty() {
-                return Ok(());
-            }
-            let send = buf.to_vec();
-            self.world
-                .all_reduce_into(&send[..], buf, SystemOperation::sum());
-            Ok(())
+            self.sum(buf)
         }
         fn all_gather(&self, bytes: &[u8]) -> Result<Vec<Vec<u8>>> {
             let bytes = &framed(bytes)[..];
