@@ -968,15 +968,8 @@ impl Agent {
             obs.len(),
             targets.len()
         );
-        // every rank must take the same number of steps: sum n and n^2, and
-        // R * sum(n^2) = (sum n)^2 holds only when all n are equal
-        let mut counts = [n as f64, (n * n) as f64];
-        comm.sum_f64(&mut counts)?;
-        let r = comm.size() as f64;
-        ensure!(
-            counts[1] * r == counts[0] * counts[0],
-            "fit_mean: the ranks hold different numbers of rows (this rank {n})"
-        );
+        // every rank must take the same number of steps
+        comm.check_identical(n as u64, "fit_mean: the numbers of rows")?;
         if self.cfg.normalize_obs {
             merge_ranks(&mut self.norm, obs, comm)?;
         }
