@@ -435,13 +435,11 @@ struct TrainerState {
     settings_hash: String,
     iteration: u64,
     samples: u64,
-    rng_seed: Vec<u8>,
-    rng_stream: u64,
-    rng_word_pos: String,
-    tracker: EpisodeTracker,
+    /// Rank 0's generator, tracker and episodes, as fields of this object.
+    #[serde(flatten)]
+    rank0: RankState,
     ats: Vec<(usize, usize, f64, u64)>,
     metrics: Vec<MetricRow>,
-    episodes: Vec<EpisodeMeta>,
     /// Ranks 1.. of a data-parallel run (absent for one process).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     ranks: Vec<RankState>,
@@ -577,13 +575,7 @@ fn load_checkpoint(
     );
     let agent = Agent::load(&dir.join("agent.safetensors"), dev)?;
     let part = if rank == 0 {
-        RankState {
-            rng_seed: st.rng_seed.clone(),
-            rng_stream: st.rng_stream,
-            rng_word_pos: st.rng_word_pos.clone(),
-            tracker: st.tracker.clone(),
-            episodes: st.episodes.clone(),
-        }
+        st.rank0.clone()
     } else {
         st.ranks[rank - 1].clone()
     };
@@ -614,6 +606,33 @@ pub struct WarmStart {
     pub mse: (f64, f64),
     /// Seconds taken.
     pub secs: f64,
+}
+
+/// What a training run is built from: the set-up, the settings, the seed,
+/// the device and the ranks (one process: [`super::comm::Solo`]).
+#[derive(Clone, Copy)]
+pub struct TrainInputs<'a> {
+    /// Library, worlds and start parameters.
+    pub setup: &'a Setup,
+    /// The `[train]` settings.
+    pub cfg: &'a TrainConfig,
+    /// The `[sample-stf]` settings.
+    pub stf_cfg: &'a StfConfig,
+    /// `--seed`.
+    pub seed: u64,
+    /// Where the networks live.
+    pub dev: &'a candle_core::Device,
+    /// The ranks.
+    pub comm: &'a dyn Comm,
+}
+
+/// Where a run stands: episode tracker, metrics so far, iterations and
+/// samples done.
+struct Progress {
+    tracker: EpisodeTracker,
+    metrics: Vec<MetricRow>,
+    iteration: u64,
+    samples: u64,
 }
 
 /// The PPO loop of `skillaug train` over one rank's share of the
@@ -661,25 +680,22 @@ impl<'a> Trainer<'a> {
     /// # Errors
     /// Sizes that do not split over the ranks, or a failure to build the
     /// environment or the agent.
-    pub fn start(
-        s: &'a Setup,
-        cfg: &TrainConfig,
-        stf_cfg: &StfConfig,
-        he: Option<HeRuntime>,
-        seed: u64,
-        dev: &candle_core::Device,
-        comm: &'a dyn Comm,
-    ) -> Result<Trainer<'a>> {
+    pub fn start(inp: TrainInputs<'a>, he: Option<HeRuntime>) -> Result<Trainer<'a>> {
+        let TrainInputs {
+            setup: s,
+            cfg,
+            seed,
+            comm,
+            ..
+        } = inp;
         let n = Self::local_envs(cfg, comm)?;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         if comm.rank() > 0 {
             rng.set_stream(comm.rank() as u64);
         }
-        let mut env = environment(s, cfg, he, n, &mut rng)?;
-        env.take_stats();
-        env.take_ats_log();
+        let env = environment(s, cfg, he, n, &mut rng)?;
         let ppo = cfg.ppo_config();
-        let mut agent = Agent::new(env.obs_dim(), env.act_dim(), &ppo, seed, dev)?;
+        let mut agent = Agent::new(env.obs_dim(), env.act_dim(), &ppo, seed, inp.dev)?;
         let mut warm_start = None;
         if cfg.warm_start_epochs > 0 {
             let t = Instant::now();
@@ -700,27 +716,14 @@ impl<'a> Trainer<'a> {
                 secs: t.elapsed().as_secs_f64(),
             });
         }
-        let mut t = Trainer {
-            s,
-            cfg: cfg.clone(),
-            comm,
-            env,
-            agent,
-            rng,
+        let progress = Progress {
             tracker: EpisodeTracker::new(n),
             metrics: Vec::new(),
             iteration: 0,
             samples: 0,
-            hash: settings_hash(cfg, stf_cfg, seed)?,
-            stf_cfg: stf_cfg.clone(),
-            seed,
-            ats_base: None,
-            warm_start,
         };
-        t.check_weights()?;
-        if comm.size() > 1 {
-            t.ats_base = Some(t.env.ats().clone());
-        }
+        let mut t = Self::assemble(inp, env, agent, rng, progress)?;
+        t.warm_start = warm_start;
         Ok(t)
     }
 
@@ -730,21 +733,18 @@ impl<'a> Trainer<'a> {
     /// # Errors
     /// No checkpoint, settings or rank count that differ from the
     /// checkpoint's, or a checkpoint that does not fit the environment.
-    #[allow(clippy::too_many_arguments)]
-    pub fn resume(
-        s: &'a Setup,
-        cfg: &TrainConfig,
-        stf_cfg: &StfConfig,
-        he: Option<HeRuntime>,
-        seed: u64,
-        dev: &candle_core::Device,
-        comm: &'a dyn Comm,
-        out: &Path,
-    ) -> Result<Trainer<'a>> {
+    pub fn resume(inp: TrainInputs<'a>, he: Option<HeRuntime>, out: &Path) -> Result<Trainer<'a>> {
+        let TrainInputs {
+            setup: s,
+            cfg,
+            stf_cfg,
+            seed,
+            comm,
+            ..
+        } = inp;
         let n = Self::local_envs(cfg, comm)?;
-        let hash = settings_hash(cfg, stf_cfg, seed)?;
-        let (agent, st, part, recs) = load_checkpoint(out, dev, comm.rank(), comm.size())?;
-        if st.settings_hash != hash {
+        let (agent, st, part, recs) = load_checkpoint(out, inp.dev, comm.rank(), comm.size())?;
+        if st.settings_hash != settings_hash(cfg, stf_cfg, seed)? {
             let now = resume_settings(cfg, stf_cfg, seed)?;
             let changed: String = st
                 .settings
@@ -768,27 +768,46 @@ impl<'a> Trainer<'a> {
             ats.restore_stat(*c, *f, *m, *v);
         }
         env.set_ats(ats);
-        env.take_stats();
-        env.take_ats_log();
         ensure!(
             agent.obs_dim() == env.obs_dim() && agent.act_dim() == env.act_dim(),
             "--resume: the checkpoint's agent does not fit this environment"
         );
-        let ats_base = (comm.size() > 1).then(|| env.ats().clone());
-        let t = Trainer {
-            s,
-            cfg: cfg.clone(),
-            comm,
-            env,
-            agent,
-            rng: rng_of(&part)?,
-            tracker: part.tracker,
+        let progress = Progress {
+            tracker: part.tracker.clone(),
             metrics: st.metrics,
             iteration: st.iteration,
             samples: st.samples,
-            hash,
-            stf_cfg: stf_cfg.clone(),
-            seed,
+        };
+        Self::assemble(inp, env, agent, rng_of(&part)?, progress)
+    }
+
+    /// The trainer of a fresh or resumed run: the environment's statistics
+    /// and ATS records so far dropped, the ranks' ATS tables and weights
+    /// checked alike.
+    fn assemble(
+        inp: TrainInputs<'a>,
+        mut env: HumanoidEnv<'a>,
+        agent: Agent,
+        rng: ChaCha8Rng,
+        progress: Progress,
+    ) -> Result<Trainer<'a>> {
+        env.take_stats();
+        env.take_ats_log();
+        let ats_base = (inp.comm.size() > 1).then(|| env.ats().clone());
+        let t = Trainer {
+            s: inp.setup,
+            cfg: inp.cfg.clone(),
+            comm: inp.comm,
+            env,
+            agent,
+            rng,
+            tracker: progress.tracker,
+            metrics: progress.metrics,
+            iteration: progress.iteration,
+            samples: progress.samples,
+            hash: settings_hash(inp.cfg, inp.stf_cfg, inp.seed)?,
+            stf_cfg: inp.stf_cfg.clone(),
+            seed: inp.seed,
             ats_base,
             warm_start: None,
         };
@@ -1000,13 +1019,9 @@ impl<'a> Trainer<'a> {
             settings_hash: self.hash.clone(),
             iteration: self.iteration,
             samples: self.samples,
-            rng_seed: part.rng_seed,
-            rng_stream: part.rng_stream,
-            rng_word_pos: part.rng_word_pos,
-            tracker: part.tracker,
+            rank0: part,
             ats: self.env.ats().visited(),
             metrics: self.metrics.clone(),
-            episodes: part.episodes,
             ranks: others,
             settings: Some(resume_settings(&self.cfg, &self.stf_cfg, self.seed)?),
         };

@@ -15,7 +15,7 @@
 use super::Common;
 use crate::rl::comm::Comm;
 use crate::rl::humanoid::Method;
-use crate::rl::trainer::{history_encoder, Setup, Trainer};
+use crate::rl::trainer::{history_encoder, Setup, TrainInputs, Trainer};
 use crate::rl::VecEnv;
 use crate::table::{self, train::MetricRow};
 use anyhow::{Context, Result};
@@ -116,10 +116,18 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
     if !sw.resume {
         crate::rl::trainer::refuse_to_replace(&out)?;
     }
+    let inputs = TrainInputs {
+        setup: &s,
+        cfg: &cfg,
+        stf_cfg: &stf_cfg,
+        seed,
+        dev: &dev,
+        comm,
+    };
     let mut t = if sw.resume {
-        Trainer::resume(&s, &cfg, &stf_cfg, he, seed, &dev, comm, &out)?
+        Trainer::resume(inputs, he, &out)?
     } else {
-        Trainer::start(&s, &cfg, &stf_cfg, he, seed, &dev, comm)?
+        Trainer::start(inputs, he)?
     };
     if !quiet {
         if let Some(w) = &t.warm_start {
