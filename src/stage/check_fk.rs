@@ -8,7 +8,7 @@
 
 use super::Common;
 use crate::dataset;
-use crate::ingest::{clip_set, ingest_clip, IngestConfig};
+use crate::ingest::{ingest_clip, IngestConfig};
 use crate::sim::mjcf::Model;
 use crate::sim::{SimOptions, World};
 use anyhow::{Context, Result};
@@ -30,12 +30,7 @@ pub struct FkError {
 /// FK errors of every clip the arguments select.
 pub fn errors(common: &Common) -> Result<Vec<FkError>> {
     let cfg: IngestConfig = common.settings("ingest")?;
-    let set = clip_set(
-        common.args.dataset.as_deref(),
-        common.args.from.as_deref(),
-        common.args.data_root.as_deref(),
-        &cfg,
-    )?;
+    let set = common.clip_set(&cfg)?;
     let root = dataset::data_root(common.args.data_root.as_deref())?;
     let clips = set
         .clips

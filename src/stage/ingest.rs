@@ -4,7 +4,7 @@
 
 use super::{Common, Outputs};
 use crate::dataset::ClipSource;
-use crate::ingest::{clip_set, ingest_clip, metadata, table_rows, IngestConfig, Ingested};
+use crate::ingest::{ingest_clip, metadata, table_rows, IngestConfig, Ingested};
 use crate::{progress, table};
 use anyhow::{bail, Result};
 use rayon::prelude::*;
@@ -17,12 +17,7 @@ pub fn run(common: &Common, skip_bad_flag: bool) -> Result<()> {
     let mut cfg: IngestConfig = common.settings("ingest")?;
     cfg.skip_bad |= skip_bad_flag;
     let _lock = common.lock_output("ingest")?;
-    let set = clip_set(
-        common.args.dataset.as_deref(),
-        common.args.from.as_deref(),
-        common.args.data_root.as_deref(),
-        &cfg,
-    )?;
+    let set = common.clip_set(&cfg)?;
 
     let bar = progress::bar(set.clips.len() as u64, "ingest", common.args.quiet);
     let results: Vec<(ClipSource, Result<Ingested>)> = set

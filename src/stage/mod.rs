@@ -76,6 +76,17 @@ impl Common {
         self.args.from.as_deref().unwrap_or(&self.args.out)
     }
 
+    /// The clips `--dataset` or `--from` select ([`crate::ingest::clip_set`]).
+    pub fn clip_set(&self, cfg: &crate::ingest::IngestConfig) -> Result<crate::dataset::ClipSet> {
+        let a = &self.args;
+        crate::ingest::clip_set(
+            a.dataset.as_deref(),
+            a.from.as_deref(),
+            a.data_root.as_deref(),
+            cfg,
+        )
+    }
+
     /// Lock the output folder (`--out`) for `stage` until the guard drops
     /// ([`crate::table::io::OutputLock`]).
     pub fn lock_output(&self, stage: &str) -> Result<crate::table::io::OutputLock> {
