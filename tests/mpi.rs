@@ -7,10 +7,7 @@
 
 mod common;
 
-use arrow::array::AsArray;
-use arrow::datatypes::Float64Type;
 use common::*;
-use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
@@ -75,51 +72,12 @@ fn train_args<'a>(from: &'a str, out: &'a str, samples: &'a str) -> Vec<&'a str>
     v
 }
 
-/// Float64 columns of train_metrics.parquet without the timings.
-fn metrics(dir: &Path) -> Vec<(String, Vec<f64>)> {
-    let t = skillaug::table::io::read_parquet(&dir.join("train_metrics.parquet")).unwrap();
-    let b = &t.batches[0];
-    let mut v = Vec::new();
-    for f in b.schema().fields() {
-        let name = f.name().clone();
-        if ["samples_per_s", "sim_s", "act_s", "update_s"].contains(&name.as_str()) {
-            continue;
-        }
-        if let Some(a) = b
-            .column_by_name(&name)
-            .unwrap()
-            .as_primitive_opt::<Float64Type>()
-        {
-            v.push((name, a.values().to_vec()));
-        }
-    }
-    v
-}
-
-/// Every f32 tensor of a safetensors file, by name.
-fn weights(path: &Path) -> Vec<(String, Vec<f32>)> {
-    let m = candle_core::safetensors::load(path, &candle_core::Device::Cpu).unwrap();
-    let mut v: Vec<(String, Vec<f32>)> = m
-        .into_iter()
-        .filter(|(_, t)| t.dtype() == candle_core::DType::F32)
-        .map(|(k, t)| (k, t.flatten_all().unwrap().to_vec1::<f32>().unwrap()))
-        .collect();
-    v.sort_by(|a, b| a.0.cmp(&b.0));
-    v
-}
-
 fn column(m: &[(String, Vec<f64>)], name: &str) -> Vec<f64> {
     m.iter().find(|(k, _)| k == name).unwrap().1.clone()
 }
 
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
-}
-
-fn checkpoint_iteration(out: &Path) -> Option<u64> {
-    let text = std::fs::read_to_string(out.join("checkpoint/state.json")).ok()?;
-    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
-    v["iteration"].as_u64()
 }
 
 /// The pid of the process of rank `rank` among the children of `parent`

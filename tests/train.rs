@@ -4,8 +4,6 @@
 
 mod common;
 
-use arrow::array::AsArray;
-use arrow::datatypes::Float64Type;
 use common::*;
 use rand::SeedableRng;
 use skillaug::rl::config::TrainConfig;
@@ -13,7 +11,6 @@ use skillaug::rl::humanoid::{obs_dim, write_observation};
 use skillaug::rl::trainer::environment;
 use skillaug::rl::VecEnv;
 use skillaug::stage::train::setup;
-use std::path::Path;
 
 /// With [`TINY_TRAIN`]: two mini-epochs, a checkpoint every iteration, two threads.
 const TINY: &[&str] = &[
@@ -32,44 +29,6 @@ fn train_args<'a>(from: &'a str, out: &'a str, extra: &[&'a str]) -> Vec<&'a str
     v.extend_from_slice(TINY);
     v.extend_from_slice(extra);
     v
-}
-
-/// Every Float64 column of train_metrics.parquet except the timings.
-fn metrics(dir: &Path) -> Vec<(String, Vec<f64>)> {
-    let t = skillaug::table::io::read_parquet(&dir.join("train_metrics.parquet")).unwrap();
-    let b = &t.batches[0];
-    let mut v = Vec::new();
-    for f in b.schema().fields() {
-        let name = f.name().clone();
-        if ["samples_per_s", "sim_s", "act_s", "update_s"].contains(&name.as_str()) {
-            continue;
-        }
-        if let Some(a) = b
-            .column_by_name(&name)
-            .unwrap()
-            .as_primitive_opt::<Float64Type>()
-        {
-            v.push((name, a.values().to_vec()));
-        }
-    }
-    v
-}
-
-fn weights(path: &Path) -> Vec<(String, Vec<f32>)> {
-    let m = candle_core::safetensors::load(path, &candle_core::Device::Cpu).unwrap();
-    let mut v: Vec<(String, Vec<f32>)> = m
-        .into_iter()
-        .filter(|(_, t)| t.dtype() == candle_core::DType::F32)
-        .map(|(k, t)| (k, t.flatten_all().unwrap().to_vec1::<f32>().unwrap()))
-        .collect();
-    v.sort_by(|a, b| a.0.cmp(&b.0));
-    v
-}
-
-fn checkpoint_iteration(out: &Path) -> Option<u64> {
-    let text = std::fs::read_to_string(out.join("checkpoint/state.json")).ok()?;
-    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
-    v["iteration"].as_u64()
 }
 
 #[test]

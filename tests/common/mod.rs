@@ -323,3 +323,44 @@ pub fn prim<'a, T: arrow::datatypes::ArrowPrimitiveType>(
         .as_primitive_opt::<T>()
         .unwrap_or_else(|| panic!("column `{name}` is not of the expected type"))
 }
+
+/// Every Float64 column of train_metrics.parquet except the timings, by name.
+pub fn metrics(dir: &Path) -> Vec<(String, Vec<f64>)> {
+    let t = skillaug::table::io::read_parquet(&dir.join("train_metrics.parquet")).unwrap();
+    let b = &t.batches[0];
+    let mut v = Vec::new();
+    for f in b.schema().fields() {
+        use arrow::array::AsArray;
+        let name = f.name().clone();
+        if ["samples_per_s", "sim_s", "act_s", "update_s"].contains(&name.as_str()) {
+            continue;
+        }
+        if let Some(a) = b
+            .column_by_name(&name)
+            .unwrap()
+            .as_primitive_opt::<arrow::datatypes::Float64Type>()
+        {
+            v.push((name, a.values().to_vec()));
+        }
+    }
+    v
+}
+
+/// Every f32 tensor of a safetensors file, by name.
+pub fn weights(path: &Path) -> Vec<(String, Vec<f32>)> {
+    let m = candle_core::safetensors::load(path, &candle_core::Device::Cpu).unwrap();
+    let mut v: Vec<(String, Vec<f32>)> = m
+        .into_iter()
+        .filter(|(_, t)| t.dtype() == candle_core::DType::F32)
+        .map(|(k, t)| (k, t.flatten_all().unwrap().to_vec1::<f32>().unwrap()))
+        .collect();
+    v.sort_by(|a, b| a.0.cmp(&b.0));
+    v
+}
+
+/// The iteration of the checkpoint in `out` (None: none yet).
+pub fn checkpoint_iteration(out: &Path) -> Option<u64> {
+    let text = std::fs::read_to_string(out.join("checkpoint/state.json")).ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    v["iteration"].as_u64()
+}
