@@ -40,10 +40,17 @@ fn a_run_killed_with_sigkill_and_resumed_matches_the_uninterrupted_run() {
 fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // continuation past the clip end (200-step episodes, no early
     // termination, so the references do continue), the warm start, the
-    // critic warm-up, the adaptive learning rate and value normalisation
+    // critic warm-up, the adaptive learning rate, value normalisation,
+    // residual actions with a lead and the reference observation
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
+            "--set",
+            "train.residual_action=true",
+            "--set",
+            "train.feed_forward_lead=1",
+            "--set",
+            "train.reference_obs=true",
             "--set",
             "train.episode_length=200",
             "--set",
@@ -94,11 +101,16 @@ fn killed_and_resumed_matches_uninterrupted(he: bool, more: &[&str]) {
     extra.extend_from_slice(more);
     let a = dir.path().join("a");
     ok(&train_args(from, a.to_str().unwrap(), &extra));
-    // the encoder's 3 dimensions are in the observation exactly when asked
+    // the encoder's 3 dimensions and the reference block's 63 are in the
+    // observation exactly when asked
     let meta: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(a.join("policy.meta.json")).unwrap())
             .unwrap();
-    assert_eq!(meta["obs_dim"], if he { 905 } else { 902 });
+    let reference = more.contains(&"train.reference_obs=true");
+    assert_eq!(
+        meta["obs_dim"],
+        902 + if he { 3 } else { 0 } + if reference { 63 } else { 0 }
+    );
 
     let b = dir.path().join("b");
     let args = train_args(from, b.to_str().unwrap(), &extra);
@@ -586,6 +598,59 @@ fn tracking_failures_end_episodes_above_the_fall_height() {
         }
     }
     assert!(high > 0, "no fall between 0.3 and 0.8 m");
+}
+
+#[test]
+fn residual_actions_replay_the_reference_and_the_reference_block_follows_it() {
+    // Zero residual actions replay the next reference pose (continued past
+    // the clip end) as PD targets: they track better than zero plain
+    // actions (the T-pose), and every step has a reference to score.
+    let (dir, run) = ingested("ballplay");
+    let common = common_for(&run, dir.path().join("x"));
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        early_termination: false,
+        episode_length: 120,
+        ..TrainConfig::default()
+    };
+    let s = setup(&common, &base).unwrap();
+    let n = 4;
+    let run_env = |cfg: &TrainConfig| -> (f64, usize, Vec<f32>, usize) {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
+        let zeros = vec![0f32; n * env.act_dim()];
+        let (mut sum, mut scored) = (0.0, 0);
+        for t in 0..100 {
+            env.step(&zeros, &mut rng).unwrap();
+            for r in env.sm_rewards().iter().flatten() {
+                // the tracking part: before the unbalanced replay falls
+                if t < 30 {
+                    sum += r;
+                }
+                scored += 1;
+            }
+        }
+        (sum / (30 * n) as f64, scored, env.observe(), env.obs_dim())
+    };
+    let (plain, _, _, od_plain) = run_env(&base);
+    let residual = TrainConfig {
+        residual_action: true,
+        reference_obs: true,
+        ..base.clone()
+    };
+    let (replay, scored, obs, od) = run_env(&residual);
+    eprintln!("mean SM over 30 steps: zero residual {replay:.3}, zero plain {plain:.3}");
+    assert!(replay > plain + 0.05, "{replay} vs {plain}");
+    // 100 steps of 4 episodes, all continued past the 81-frame clips
+    assert_eq!(scored, 4 * 100);
+    // the reference block: 63 values after the 902 of the observation,
+    // starting with the reference's root height
+    assert_eq!(od_plain, 902);
+    assert_eq!(od, 902 + 63);
+    for e in 0..n {
+        let z = obs[e * od + 902];
+        assert!((0.6..1.2).contains(&z), "reference root height {z}");
+    }
 }
 
 #[test]

@@ -360,6 +360,10 @@ pub fn plan_cells(
             root_rot: t.root_rot,
             smoothness: t.smoothness,
         },
+        residual_action: t.residual_action,
+        reference_obs: t.reference_obs,
+        feed_forward_lead: t.feed_forward_lead,
+        seam_masked_min: t.seam_masked_min,
         ..EnvConfig::training(t.method)
     };
     let class_of = |skill: &str| -> u32 {
@@ -390,6 +394,14 @@ pub fn plan_cells(
             let trial = EnvConfig {
                 fixed_length: Some(steps(r)),
                 ..base.clone()
+            };
+            let trial = EnvConfig {
+                continue_steps: if t.residual_action || t.reference_obs {
+                    steps(r)
+                } else {
+                    0
+                },
+                ..trial
             };
             if want("sr") {
                 cells.push(cell("sr", skill, skill, rule, trial.clone()));

@@ -512,6 +512,16 @@ pub fn policy_model(meta: &PolicyMeta, agent: &Agent) -> Result<ModelProto> {
         sk.name(),
         sk.n_joints()
     );
+    ensure!(
+        !meta.train.residual_action && !meta.train.reference_obs,
+        "the policy was trained with {}: it needs its reference motion at every step, which \
+         this export does not carry; export a policy trained without them",
+        if meta.train.residual_action {
+            "train.residual_action"
+        } else {
+            "train.reference_obs"
+        }
+    );
     let n_objects = meta.objects.len();
     let base = obs_dim(sk, n_objects, 0);
     let he_dim = od.checked_sub(base).with_context(|| {

@@ -114,6 +114,32 @@ pub struct TrainConfig {
     /// PPO settings; `hidden`, `lr`, `minibatch` come from the preset
     /// unless given here.
     pub ppo: PpoOverrides,
+    /// Residual actions: PD targets = the next reference frame's joint
+    /// rotations + π·a ([`crate::rl::humanoid::EnvConfig::residual_action`]);
+    /// off = π·a (Eq. 11). A policy trained with it needs its reference at
+    /// every step, so evaluation continues the reference past the clip end
+    /// for it. Not written when off, so older settings hash alike.
+    #[serde(skip_serializing_if = "is_false")]
+    pub residual_action: bool,
+    /// The next reference frame in the observation
+    /// ([`crate::rl::humanoid::EnvConfig::reference_obs`]); evaluation
+    /// continues the reference for such a policy as for `residual_action`.
+    /// Not written when off.
+    #[serde(skip_serializing_if = "is_false")]
+    pub reference_obs: bool,
+    /// Lead of the feed-forward PD targets, frames
+    /// ([`crate::rl::humanoid::EnvConfig::feed_forward_lead`]; residual
+    /// actions and the warm start's targets). Not written when 0.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub feed_forward_lead: f32,
+}
+
+fn is_zero(x: &f32) -> bool {
+    *x == 0.0
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 /// PPO keys of `[train.ppo]`; unset keys take the preset's value or the
@@ -192,6 +218,9 @@ impl Default for TrainConfig {
             ats_update: Update::Mean,
             checkpoint_every: 10,
             ppo: PpoOverrides::default(),
+            residual_action: false,
+            reference_obs: false,
+            feed_forward_lead: 0.0,
         }
     }
 }
@@ -249,6 +278,7 @@ impl crate::config::Validate for TrainConfig {
         let c = crate::config::Check::new(stage);
         c.range("p_e", self.p_e, 0.0, 1.0)?;
         c.range("p_n", self.p_n, 0.0, 1.0)?;
+        c.range("feed_forward_lead", self.feed_forward_lead as f64, 0.0, 5.0)?;
         c.count("num_envs", self.envs() as u64, 1, 1 << 20)?;
         c.count("horizon", self.steps() as u64, 1, 1 << 20)?;
         c.count("samples", self.samples, 1, u64::MAX)?;

@@ -155,6 +155,24 @@ pub struct EnvConfig {
     /// Masked steps at a seam at least (Eq. 20 gives N = 0 for every
     /// β > 0.1; 0 = Eq. 20 alone).
     pub seam_masked_min: u32,
+    /// Residual actions: the PD targets are the next reference frame's
+    /// joint rotations plus π·a (the action offsets the reference pose, as
+    /// in UHC, Luo et al. 2021, Section 3.2) instead of π·a alone (Eq. 11,
+    /// the reference code). The next frame is the one the episode's
+    /// reference reaches at the coming step; at a masked step the last
+    /// one is kept, at the start of an episode without one the start's
+    /// own pose.
+    pub residual_action: bool,
+    /// Append the next reference frame to the observation
+    /// ([`reference_obs_dim`], [`write_reference_obs`]), as tracking
+    /// controllers do (DeepMimic's phase, PHC's target state: Luo et al.
+    /// 2023, Section 3); off = the skill condition alone (the paper, B.1).
+    pub reference_obs: bool,
+    /// Lead of the feed-forward PD targets (residual actions and the warm
+    /// start's targets): e_{t+1} + lead·(e_{t+1} − e_t) instead of the
+    /// next frame's joint exp-maps e_{t+1} alone (0), to make up for the
+    /// PD controller's lag behind a moving target.
+    pub feed_forward_lead: f32,
 }
 
 impl EnvConfig {
@@ -179,6 +197,9 @@ impl EnvConfig {
             term_object_distance: 0.0,
             fall_height_by_skill: Default::default(),
             seam_masked_min: 0,
+            residual_action: false,
+            reference_obs: false,
+            feed_forward_lead: 0.0,
         }
     }
 }
@@ -190,6 +211,47 @@ impl EnvConfig {
 pub fn obs_dim(sk: Skeleton, n_objects: usize, he_dim: usize) -> usize {
     let b = sk.n_bodies();
     1 + 3 * (b - 1) + 6 * b + 3 * b + 3 * b + 30 + 15 * n_objects + CONDITION_SLOTS + he_dim
+}
+
+/// Size of the reference block of the observation with `n_objects`
+/// objects: 63 for BallPlay (see [`write_reference_obs`]).
+pub fn reference_obs_dim(n_objects: usize) -> usize {
+    1 + 54 + 2 + 3 + 3 * n_objects
+}
+
+/// Write the reference block of the observation (length
+/// [`reference_obs_dim`]) of a character in state `s` whose next reference
+/// frame is `r` (zeros when `None`): the reference's root height (m); its
+/// 18 key points (root and 17 key bodies) minus the character's (m); the
+/// cosine and sine of its heading minus the character's; its root linear
+/// velocity (m/s); each object's reference position minus the simulated
+/// one (m). Vectors in the character's heading frame.
+pub fn write_reference_obs(s: &State, r: Option<&State>, sk: Skeleton, out: &mut [f32]) {
+    out.fill(0.0);
+    let Some(r) = r else { return };
+    let h = reward::heading(s.root_rot);
+    let inv = Rotation::from_rotation_z(-(h as f32));
+    let mut i = 0;
+    let mut put = |v: &[f32]| {
+        out[i..i + v.len()].copy_from_slice(v);
+        i += v.len();
+    };
+    put(&[r.root_pos[2]]);
+    let (a, b) = (reward::key_points(s, sk), reward::key_points(r, sk));
+    for (pa, pb) in a.chunks_exact(3).zip(b.chunks_exact(3)) {
+        let d = Vector::new(
+            (pb[0] - pa[0]) as f32,
+            (pb[1] - pa[1]) as f32,
+            (pb[2] - pa[2]) as f32,
+        );
+        put(&(inv * d).to_array());
+    }
+    let dh = reward::wrap_angle(reward::heading(r.root_rot) - h);
+    put(&[dh.cos() as f32, dh.sin() as f32]);
+    put(&(inv * vec3(&r.root_linvel)).to_array());
+    for (po, ro) in s.obj_pos.chunks_exact(3).zip(r.obj_pos.chunks_exact(3)) {
+        put(&(inv * (vec3(ro) - vec3(po))).to_array());
+    }
 }
 
 /// The ten fingertip bodies of the contact observation (contact-obs slots
@@ -435,6 +497,11 @@ struct Episode {
     n: usize,
     actions: Vec<f32>,
     hist: Vec<f32>,
+    /// With residual actions: the coming step's feed-forward action, the
+    /// next reference frame's joint exp-maps / π (`[J*3]`); empty without.
+    ff: Vec<f32>,
+    /// With the reference observation: the next reference frame (anchored).
+    next_ref: Option<State>,
 }
 
 impl Episode {
@@ -654,6 +721,28 @@ struct Ctx<'a> {
     stf: StfParams,
 }
 
+/// The action whose PD targets are the joint exp-maps `joint_rot`
+/// (`[J*3]`, rad): e / π, clipped to the action range [-1, 1].
+pub fn feed_forward(joint_rot: &[f32]) -> Vec<f32> {
+    joint_rot
+        .iter()
+        .map(|e| (e / std::f32::consts::PI).clamp(-1.0, 1.0))
+        .collect()
+}
+
+/// The joint exp-maps `next + lead·(next − now)` (`[J*3]`, rad): the
+/// next frame's, extrapolated by `lead` frames along the step from `now`
+/// (see [`EnvConfig::feed_forward_lead`]); `next` itself when `lead` is 0.
+pub fn lead_target(now: &[f32], next: &[f32], lead: f32) -> Vec<f32> {
+    if lead == 0.0 {
+        return next.to_vec();
+    }
+    next.iter()
+        .zip(now)
+        .map(|(n, c)| n + lead * (n - c))
+        .collect()
+}
+
 fn no_object_class(class: u32) -> bool {
     class == 0 || class == 10
 }
@@ -721,13 +810,21 @@ impl Ctx<'_> {
             sm_weights,
             ats_key,
             t: 0,
-            prev_joint_vel: g.joint_vel,
+            prev_joint_vel: g.joint_vel.clone(),
             sum: 0.0,
             n: 0,
             actions: Vec::new(),
             hist,
             traj,
+            ff: Vec::new(),
+            next_ref: None,
         };
+        let mut ep = ep;
+        if self.cfg.residual_action {
+            ep.ff = feed_forward(&g.joint_rot);
+        }
+        self.update_next(&mut ep);
+        self.write_reference_block(&g, &ep, &mut row);
         Ok(((w, ep, row), feature))
     }
 
@@ -743,7 +840,12 @@ impl Ctx<'_> {
         out: &mut [f32],
     ) -> Outcome {
         ep.actions.extend_from_slice(a);
-        w.apply_action(a);
+        if self.cfg.residual_action {
+            let total: Vec<f32> = a.iter().zip(&ep.ff).map(|(a, f)| a + f).collect();
+            w.apply_action(&total);
+        } else {
+            w.apply_action(a);
+        }
         let contacts = w.step_with_contacts();
         let s = w.get_state();
         ep.t += 1;
@@ -793,8 +895,10 @@ impl Ctx<'_> {
         if !(fall || collapse || lost.is_some()) {
             self.extend(ep, &s);
         }
+        self.update_next(ep);
         let timeout = ep.t >= self.cfg.fixed_length.unwrap_or(ep.policy_steps());
         write_observation(w, &s, Some(&contacts), self.sk, ep.class, out);
+        self.write_reference_block(&s, ep, out);
         let probe = self.probe(&s);
         let feature = he.map_or_else(Vec::new, |h| h.feature(&s, self.sk));
         let record = record.then(|| RecordedStep {
@@ -816,6 +920,42 @@ impl Ctx<'_> {
             probe,
             record,
         }
+    }
+
+    /// With residual actions or the reference observation: take the
+    /// reference frame of step `ep.t + 1` when that step has an unmasked
+    /// one (else keep the last): its joint rotations as `ep.ff` (local,
+    /// so a continued frame's anchor does not change them), the anchored
+    /// state as `ep.next_ref`.
+    fn update_next(&self, ep: &mut Episode) {
+        let (res, obs) = (self.cfg.residual_action, self.cfg.reference_obs);
+        if !(res || obs) {
+            return;
+        }
+        if let Some(r) = self.reference(ep, ep.t + 1) {
+            if res {
+                let lead = self.cfg.feed_forward_lead;
+                let e = match self.reference(ep, ep.t).filter(|_| lead != 0.0) {
+                    Some(now) => lead_target(&now.joint_rot, &r.joint_rot, lead),
+                    None => r.joint_rot.clone(),
+                };
+                ep.ff = feed_forward(&e);
+            }
+            if obs {
+                ep.next_ref = Some(r);
+            }
+        }
+    }
+
+    /// Fill the reference block of the observation row `out` (after the
+    /// condition, before the history embedding) when it is on.
+    fn write_reference_block(&self, s: &State, ep: &Episode, out: &mut [f32]) {
+        if !self.cfg.reference_obs {
+            return;
+        }
+        let base = obs_dim(self.sk, s.obj_pos.len() / 3, 0);
+        let n = reference_obs_dim(s.obj_pos.len() / 3);
+        write_reference_obs(s, ep.next_ref.as_ref(), self.sk, &mut out[base..base + n]);
     }
 
     /// The reference state of `ep`'s step `t` (anchored when continued);
@@ -1015,7 +1155,12 @@ impl<'a> HumanoidEnv<'a> {
             lib,
             sk,
             kind: DatasetKind::of_library(lib),
-            obs_dim: obs_dim(sk, n_objects, he_dim),
+            obs_dim: obs_dim(sk, n_objects, he_dim)
+                + if parts.cfg.reference_obs {
+                    reference_obs_dim(n_objects)
+                } else {
+                    0
+                },
             act_dim: 3 * sk.n_joints(),
             wrists: ["jRightWrist", "jLeftWrist", "R_Wrist", "L_Wrist"]
                 .iter()
@@ -1083,6 +1228,7 @@ impl<'a> HumanoidEnv<'a> {
     ) -> Result<(Vec<f32>, Vec<f32>)> {
         use crate::augment::stf::{perturb, refresh_bodies};
         let lib = self.ctx.lib;
+        let needs_next = self.ctx.cfg.residual_action || self.ctx.cfg.reference_obs;
         let mut starts = Vec::new();
         for &c in clips {
             let row = &lib.clips[c];
@@ -1092,11 +1238,14 @@ impl<'a> HumanoidEnv<'a> {
                 let (Some(s), Some(next)) = (lib.state(c, f), lib.state(c, f + 1)) else {
                     continue;
                 };
-                let target: Vec<f32> = next
-                    .joint_rot
-                    .iter()
-                    .map(|e| (e / std::f32::consts::PI).clamp(-1.0, 1.0))
-                    .collect();
+                // With residual actions the next frame is the feed-forward
+                // part, so the policy's own part is zero.
+                let target = if self.ctx.cfg.residual_action {
+                    vec![0.0; next.joint_rot.len()]
+                } else {
+                    let lead = self.ctx.cfg.feed_forward_lead;
+                    feed_forward(&lead_target(&s.joint_rot, &next.joint_rot, lead))
+                };
                 for k in 0..=copies {
                     let start = if k == 0 {
                         s.clone()
@@ -1116,11 +1265,24 @@ impl<'a> HumanoidEnv<'a> {
                         connect: (c as u32, f as u32),
                         beta: 1.0,
                         n_masked: 0,
-                        steps: vec![Step {
-                            masked: false,
-                            ref_clip: None,
-                            ref_frame: None,
-                        }],
+                        steps: if needs_next {
+                            // the start frame and the next one, which the
+                            // feed-forward action and the reference
+                            // observation read
+                            [f, f + 1]
+                                .map(|f| Step {
+                                    masked: false,
+                                    ref_clip: Some(c as u32),
+                                    ref_frame: Some(f as u32),
+                                })
+                                .to_vec()
+                        } else {
+                            vec![Step {
+                                masked: false,
+                                ref_clip: None,
+                                ref_frame: None,
+                            }]
+                        },
                     };
                     starts.push((traj, target.clone()));
                 }
@@ -1551,5 +1713,46 @@ mod tests {
         // a shot: the reference's ball has left too
         let shot = state([0.0, 0.0, 1.0], [3.0, 0.0, 3.0]);
         assert_eq!(tracking_lost(&far, Some(&shot), sk, 0.0, 1.5), None);
+    }
+
+    #[test]
+    fn the_reference_block_is_the_next_frame_relative_to_the_character_in_its_heading_frame() {
+        let sk = Skeleton::MocapHumanoid;
+        let n = reference_obs_dim(1);
+        assert_eq!(n, 63);
+        // the character faces +y (heading +90 degrees)
+        let h = std::f32::consts::FRAC_PI_4.sin();
+        let mut s = state([0.0, 0.0, 0.9], [0.5, 0.0, 0.5]);
+        s.root_rot = [0.0, 0.0, h, h];
+        // the reference: 1 m further along world +x, ball 0.2 m higher,
+        // facing +x, moving at 2 m/s along +x
+        let mut r = state([1.0, 0.0, 0.9], [1.5, 0.0, 0.7]);
+        r.root_rot = [0.0, 0.0, 0.0, 1.0];
+        r.root_linvel = [2.0, 0.0, 0.0];
+        let mut out = vec![f32::NAN; n];
+        write_reference_obs(&s, Some(&r), sk, &mut out);
+        let close = |a: f32, b: f32| (a - b).abs() < 1e-5;
+        assert!(close(out[0], 0.9));
+        // world +x is the character's -y (its right)
+        for k in 0..18 {
+            let d = &out[1 + 3 * k..4 + 3 * k];
+            assert!(close(d[0], 0.0) && close(d[1], -1.0) && close(d[2], 0.0), "{d:?}");
+        }
+        // heading difference -90 degrees
+        assert!(close(out[55], 0.0) && close(out[56], -1.0));
+        assert!(close(out[57], 0.0) && close(out[58], -2.0) && close(out[59], 0.0));
+        assert!(close(out[60], 0.0) && close(out[61], -1.0) && close(out[62], 0.2));
+        // no reference yet: zeros
+        write_reference_obs(&s, None, sk, &mut out);
+        assert!(out.iter().all(|v| *v == 0.0));
+    }
+
+    #[test]
+    fn the_feed_forward_action_is_the_joint_rotation_over_pi_clipped() {
+        let pi = std::f32::consts::PI;
+        assert_eq!(
+            feed_forward(&[0.0, pi / 2.0, -pi / 4.0, 4.0, -4.0]),
+            vec![0.0, 0.5, -0.25, 1.0, -1.0]
+        );
     }
 }
