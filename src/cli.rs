@@ -83,6 +83,24 @@ pub struct StageArgs {
     pub quiet: bool,
 }
 
+impl StageArgs {
+    /// Quiet arguments of a stage that ingests manifest `dataset` (with the
+    /// data root `data_root`) into `out`, seed 0, no recipe.
+    pub fn for_dataset(out: PathBuf, dataset: &str, data_root: Option<PathBuf>) -> StageArgs {
+        StageArgs {
+            out,
+            dataset: Some(dataset.to_string()),
+            from: None,
+            data_root,
+            recipe: None,
+            set: Vec::new(),
+            seed: 0,
+            threads: None,
+            quiet: true,
+        }
+    }
+}
+
 /// `skillaug ingest`.
 #[derive(Debug, Args)]
 pub struct IngestArgs {

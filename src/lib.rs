@@ -16,6 +16,7 @@ pub mod export;
 pub mod ingest;
 pub mod motion;
 pub mod nn;
+pub mod pipeline;
 pub mod plot;
 pub mod progress;
 pub mod pt;

@@ -741,6 +741,52 @@ impl<'a> StfSampler<'a> {
     }
 }
 
+/// The summary table: per target skill, trajectories per start kind, mean N
+/// and mean length (policy steps).
+pub fn summary(trajs: &[Trajectory], skills: &[String]) -> String {
+    const KINDS: [&str; 4] = ["rsi", "rsi+noise", "stg", "stg+noise"];
+    let mut s = format!(
+        "{:<14} {:>5} {:>6} {:>6} {:>9} {:>6} {:>9} {:>8} {:>6} {:>10}\n",
+        "target skill",
+        "class",
+        "trajs",
+        "rsi",
+        "rsi+noise",
+        "stg",
+        "stg+noise",
+        "fallback",
+        "mean N",
+        "mean steps"
+    );
+    let row = |name: &str, class: String, v: &[&Trajectory]| -> String {
+        let n = v.len().max(1) as f64;
+        let count = |k: &str| v.iter().filter(|t| t.kind_label() == k).count();
+        let mean_n = v.iter().map(|t| t.n_masked as f64).sum::<f64>() / n;
+        let mean_len = v.iter().map(|t| t.policy_steps() as f64).sum::<f64>() / n;
+        format!(
+            "{:<14} {:>5} {:>6} {:>6} {:>9} {:>6} {:>9} {:>8} {:>6.2} {:>10.1}\n",
+            name,
+            class,
+            v.len(),
+            count(KINDS[0]),
+            count(KINDS[1]),
+            count(KINDS[2]),
+            count(KINDS[3]),
+            v.iter().filter(|t| t.fallback).count(),
+            mean_n,
+            mean_len
+        )
+    };
+    for sk in skills {
+        let v: Vec<&Trajectory> = trajs.iter().filter(|t| &t.target_skill == sk).collect();
+        if let Some(t) = v.first() {
+            s += &row(sk, t.condition.to_string(), &v);
+        }
+    }
+    s += &row("all", String::new(), &trajs.iter().collect::<Vec<_>>());
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::ats::{Ats, AtsParams};

@@ -11,6 +11,43 @@ use crate::rl::PpoConfig;
 use anyhow::Result;
 use serde::{Deserialize, Serialize};
 
+/// Command-line switches of `skillaug train` (each, when given, overrides
+/// the recipe).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Switches {
+    /// `--method`.
+    pub method: Option<Method>,
+    /// `--nsi`.
+    pub nsi: bool,
+    /// `--stg`.
+    pub stg: bool,
+    /// `--stf`.
+    pub stf: bool,
+    /// `--ats`.
+    pub ats: bool,
+    /// `--he`.
+    pub he: bool,
+    /// `--device`.
+    pub device: Option<String>,
+    /// `--resume`.
+    pub resume: bool,
+}
+
+impl Switches {
+    /// Apply the given switches to `cfg` (a switch only turns a component
+    /// on; `--method` replaces the recipe's).
+    pub fn apply(&self, cfg: &mut TrainConfig) {
+        if let Some(m) = self.method {
+            cfg.method = m;
+        }
+        cfg.nsi |= self.nsi;
+        cfg.stg |= self.stg;
+        cfg.stf |= self.stf;
+        cfg.ats |= self.ats;
+        cfg.he |= self.he;
+    }
+}
+
 /// Size presets.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]

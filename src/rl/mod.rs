@@ -2,7 +2,8 @@
 //! ([`ppo`]), running observation normalisation ([`norm`]), an
 //! environment-agnostic vectorised environment interface ([`VecEnv`]) with a
 //! rollout collector ([`collect`]), and a small control task to test the
-//! learner on ([`pointmass`]).
+//! learner on ([`pointmass`]); the trainer ([`trainer`]) and its timing
+//! ([`bench`]).
 //!
 //! Reference facts followed (SkillMimic / SkillMimic-V2 released code:
 //! Ingrid789/SkillMimic-V2 `skillmimic/data/cfg/train/rlg/skillmimic.yaml` and
@@ -15,6 +16,7 @@
 //! timeouts bootstrapped from the value of the episode's last state while
 //! terminations are not.
 
+pub mod bench;
 pub mod comm;
 pub mod config;
 pub mod humanoid;

@@ -841,6 +841,44 @@ impl<'a> Trainer<'a> {
         &self.env
     }
 
+    /// One line describing the run (method, skills, sizes, networks,
+    /// switches, ranks, and where a resumed run continues), as `skillaug
+    /// train` prints it before the first iteration.
+    pub fn describe(&self, resumed: bool) -> String {
+        let cfg = &self.cfg;
+        let ppo = self.agent.config();
+        format!(
+            "train: {:?} on {} ({} clips), {} envs x {} steps{}, obs {} act {}, nets {:?}, lr {}, switches nsi={} stg={} stf={} ats={} he={}{}",
+            cfg.method,
+            self.s.skills().join(", "),
+            self.s.clips.len(),
+            cfg.envs(),
+            cfg.steps(),
+            if self.comm.size() > 1 {
+                format!(" over {} ranks", self.comm.size())
+            } else {
+                String::new()
+            },
+            self.env.obs_dim(),
+            self.env.act_dim(),
+            ppo.hidden,
+            ppo.lr,
+            cfg.nsi,
+            cfg.stg,
+            cfg.stf,
+            cfg.ats,
+            cfg.he,
+            if resumed {
+                format!(
+                    ", resumed at iteration {} ({} samples)",
+                    self.iteration, self.samples
+                )
+            } else {
+                String::new()
+            }
+        )
+    }
+
     /// Iterations done.
     pub fn iteration(&self) -> u64 {
         self.iteration

@@ -189,3 +189,42 @@ pub fn contact_agreement(
         rows,
     }))
 }
+
+/// What the simulation settings cost in accuracy on one model
+/// ([`accuracy`]).
+#[derive(Clone, Debug)]
+pub struct Accuracy {
+    /// Mean of the clips' [`pd_tracking`] errors, degrees.
+    pub pd_mean_deg: f32,
+    /// Largest of them, degrees.
+    pub pd_worst_deg: f32,
+    /// Clips measured.
+    pub clips: usize,
+    /// Worlds of the random-action [`stress`] run.
+    pub worlds: usize,
+    /// What that run saw.
+    pub stress: Stress,
+}
+
+/// [`pd_tracking`] from the zero pose to every clip's middle frame with the
+/// root held, and [`stress`] of 16 worlds ([`spread_starts`]) under
+/// full-range random actions for 5 s (seed 7).
+///
+/// # Errors
+/// As [`pd_tracking`], [`spread_starts`] and [`stress`].
+pub fn accuracy(lib: &MotionLib, model: &Model, opts: &SimOptions) -> Result<Accuracy> {
+    let mut errors = Vec::new();
+    for c in 0..lib.clips.len() {
+        if let Some(target) = lib.state(c, lib.frames[c].frames / 2) {
+            errors.push(pd_tracking(model, opts, &target)?);
+        }
+    }
+    let starts = spread_starts(lib, 16)?;
+    Ok(Accuracy {
+        pd_mean_deg: errors.iter().sum::<f32>() / errors.len().max(1) as f32,
+        pd_worst_deg: errors.iter().copied().fold(0f32, f32::max),
+        clips: errors.len(),
+        worlds: starts.len(),
+        stress: stress(model, opts, &starts, 5.0, 1.0, 7)?,
+    })
+}

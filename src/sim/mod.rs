@@ -1,7 +1,9 @@
 //! The simulated humanoid: the MJCF model ([`mjcf`]), one rapier3d world
 //! ([`world`]), its objects ([`objects`]) and a vectorised environment of
-//! independent worlds stepped in parallel ([`vec_env`]).
+//! independent worlds stepped in parallel ([`vec_env`]), with accuracy
+//! ([`checks`]) and speed ([`bench`]) measurements.
 
+pub mod bench;
 pub mod checks;
 pub mod mjcf;
 pub mod objects;

@@ -14,36 +14,12 @@
 
 use super::Common;
 use crate::rl::comm::Comm;
-use crate::rl::humanoid::Method;
 use crate::rl::trainer::{history_encoder, Setup, TrainInputs, Trainer};
-use crate::rl::VecEnv;
 use crate::table::{self, train::MetricRow};
 use anyhow::{Context, Result};
 use std::path::Path;
 
-pub use crate::rl::config::{PolicyMeta, PpoOverrides, Preset, TrainConfig};
-
-/// Command-line switches of `skillaug train` (each, when given, overrides
-/// the recipe).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Switches {
-    /// `--method`.
-    pub method: Option<Method>,
-    /// `--nsi`.
-    pub nsi: bool,
-    /// `--stg`.
-    pub stg: bool,
-    /// `--stf`.
-    pub stf: bool,
-    /// `--ats`.
-    pub ats: bool,
-    /// `--he`.
-    pub he: bool,
-    /// `--device`.
-    pub device: Option<String>,
-    /// `--resume`.
-    pub resume: bool,
-}
+pub use crate::rl::config::{PolicyMeta, PpoOverrides, Preset, Switches, TrainConfig};
 
 /// Load the library of `common`'s input folder and everything else the
 /// environment needs, with the recipe's `[sample-stf]` settings.
@@ -79,14 +55,7 @@ pub fn run(common: &Common, sw: &Switches) -> Result<()> {
 
 fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
     let mut cfg: TrainConfig = common.settings("train")?;
-    if let Some(m) = sw.method {
-        cfg.method = m;
-    }
-    cfg.nsi |= sw.nsi;
-    cfg.stg |= sw.stg;
-    cfg.stf |= sw.stf;
-    cfg.ats |= sw.ats;
-    cfg.he |= sw.he;
+    sw.apply(&mut cfg);
     let root = comm.is_root();
     let _lock = if root {
         Some(common.lock_output("train")?)
@@ -136,37 +105,7 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
                 w.states, cfg.warm_start_epochs, w.mse.0, w.mse.1, w.secs
             );
         }
-        println!(
-            "train: {:?} on {} ({} clips), {} envs x {} steps{}, obs {} act {}, nets {:?}, lr {}, switches nsi={} stg={} stf={} ats={} he={}{}",
-            cfg.method,
-            s.skills().join(", "),
-            s.clips.len(),
-            cfg.envs(),
-            cfg.steps(),
-            if comm.size() > 1 {
-                format!(" over {} ranks", comm.size())
-            } else {
-                String::new()
-            },
-            t.env().obs_dim(),
-            t.env().act_dim(),
-            t.agent().config().hidden,
-            t.agent().config().lr,
-            cfg.nsi,
-            cfg.stg,
-            cfg.stf,
-            cfg.ats,
-            cfg.he,
-            if sw.resume {
-                format!(
-                    ", resumed at iteration {} ({} samples)",
-                    t.iteration(),
-                    t.samples()
-                )
-            } else {
-                String::new()
-            }
-        );
+        println!("{}", t.describe(sw.resume));
     }
     let dataset = s.lib.clips[0].dataset.clone();
     let bar = crate::progress::bar(cfg.samples, "train", quiet);
@@ -185,19 +124,7 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
         ));
         // without a terminal (logs), one line per iteration instead of the bar
         if !quiet && bar.is_hidden() {
-            println!(
-                "iter {:>5} samples {:>9} reward {:.4} sm {:.4} len {:5.1} falls {:5.1}% {:.0} samples/s (sim {:.1} s, act {:.1} s, update {:.1} s)",
-                row.iteration,
-                row.samples,
-                m.mean_reward,
-                m.mean_sm_reward,
-                m.mean_episode_length,
-                100.0 * m.fall_rate,
-                m.samples_per_s,
-                m.sim_s,
-                m.act_s,
-                m.update_s
-            );
+            println!("{}", row.log_line());
         }
         if row.iteration % cfg.checkpoint_every == 0 || t.done() {
             t.checkpoint(&out)?;

@@ -92,6 +92,27 @@ pub struct MetricRow {
     pub metrics: Metrics,
 }
 
+impl MetricRow {
+    /// The row as one log line (what `skillaug train` prints per iteration
+    /// when it has no terminal for a progress bar).
+    pub fn log_line(&self) -> String {
+        let m = &self.metrics;
+        format!(
+            "iter {:>5} samples {:>9} reward {:.4} sm {:.4} len {:5.1} falls {:5.1}% {:.0} samples/s (sim {:.1} s, act {:.1} s, update {:.1} s)",
+            self.iteration,
+            self.samples,
+            m.mean_reward,
+            m.mean_sm_reward,
+            m.mean_episode_length,
+            100.0 * m.fall_rate,
+            m.samples_per_s,
+            m.sim_s,
+            m.act_s,
+            m.update_s
+        )
+    }
+}
+
 #[derive(Serialize, Deserialize)]
 struct RowRepr {
     iteration: u64,
