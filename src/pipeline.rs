@@ -246,7 +246,6 @@ pub fn plan(cfg: &RunConfig, table_text: impl Fn(&str) -> String, first: String)
     steps
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -52,6 +52,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "--set",
             "train.reference_obs=true",
             "--set",
+            "train.seam_blend_steps=5",
+            "--set",
             "train.episode_length=200",
             "--set",
             "train.early_termination=false",
@@ -541,6 +543,76 @@ fn continue_past_the_clip_end(masked_min: u32) {
     );
     let st = env.take_stats();
     assert_eq!(st.continuations, n as u64);
+}
+
+#[test]
+fn blended_seams_turn_the_jump_into_a_transition() {
+    // The largest step-to-step move of the reference's bodies at a seam:
+    // with 8 blended steps it is a fraction of the jump without.
+    let (dir, run) = ingested("ballplay");
+    let common = common_for(&run, dir.path().join("x"));
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        episode_length: 200,
+        early_termination: false,
+        ..TrainConfig::default()
+    };
+    let s = setup(&common, &base).unwrap();
+    let seam_move = |k: usize| -> f32 {
+        let cfg = TrainConfig {
+            seam_blend_steps: k,
+            ..base.clone()
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let n = 4;
+        let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+        env.set_recording(true);
+        let zeros = vec![0f32; n * env.act_dim()];
+        let mut last: Vec<Option<((u32, u32), Vec<f32>)>> = vec![None; n];
+        // each episode's first seam only: later the character has fallen
+        // under zero actions, and the anchor moves the reference to it
+        let mut seen = vec![false; n];
+        let mut worst = 0f32;
+        for _ in 0..150 {
+            env.step(&zeros, &mut rng).unwrap();
+            let recs = env.take_recorded();
+            for e in 0..n {
+                let (Some(at), Some(r)) =
+                    (recs[e].as_ref().unwrap().reference, env.reference_of(e))
+                else {
+                    continue;
+                };
+                if let Some((prev_at, prev)) = &last[e] {
+                    if at.0 != prev_at.0 || at.1 != prev_at.1 + 1 {
+                        // a seam: the mean move of the bodies, and of the
+                        // blended steps after it
+                        let d: f32 = r
+                            .body_pos
+                            .chunks_exact(3)
+                            .zip(prev.chunks_exact(3))
+                            .map(|(a, b)| {
+                                ((a[0] - b[0]).powi(2)
+                                    + (a[1] - b[1]).powi(2)
+                                    + (a[2] - b[2]).powi(2))
+                                .sqrt()
+                            })
+                            .sum::<f32>()
+                            / (r.body_pos.len() / 3) as f32;
+                        if !seen[e] {
+                            worst = worst.max(d);
+                        }
+                        seen[e] = true;
+                    }
+                }
+                last[e] = Some((at, r.body_pos.clone()));
+            }
+        }
+        worst
+    };
+    let (jump, blended) = (seam_move(0), seam_move(8));
+    eprintln!("largest mean body move at a seam: {jump:.3} m jumping, {blended:.3} m blended");
+    assert!(jump > 0.1, "{jump}");
+    assert!(blended < 0.5 * jump, "{blended} vs {jump}");
 }
 
 #[test]

@@ -16,7 +16,7 @@
 //! x, y and heading are where the simulated character's are at the seam.
 
 use super::ats::start_frames;
-use crate::motion::MotionLib;
+use crate::motion::{quat, MotionLib, State};
 use crate::reward::{self, Align, Weights};
 use serde::{Deserialize, Serialize};
 
@@ -75,4 +75,107 @@ pub fn seams(lib: &MotionLib, w: &Weights, min_loop: usize) -> Vec<Option<Seam>>
             best
         })
         .collect()
+}
+
+/// A reference frame blended across a seam: `from` (the frame the old clip
+/// ended on) moved so its root x, y and heading are `to`'s
+/// ([`reward::align_to`]), then mixed with `to` (a frame after the seam)
+/// with weight `w` on `to`: heights, body and object positions,
+/// velocities and joint exp-maps linearly, root and object rotations by
+/// normalised linear interpolation of the quaternions (signs matched);
+/// contact flag from `to`. Blending the first K frames after a seam with
+/// weights 1/(K+1), ..., K/(K+1) turns the jump to a dissimilar seam frame
+/// into a transition over K steps, as motion graphs blend their
+/// transitions (Kovar et al. 2002, Section 3.2).
+pub fn blend(from: &State, to: &State, w: f32) -> State {
+    let a = reward::align_to(to, from, Align::default());
+    let mut o = to.clone();
+    let mix = |x: &mut [f32], y: &[f32]| {
+        for (o, a) in x.iter_mut().zip(y) {
+            *o = a + w * (*o - a);
+        }
+    };
+    mix(&mut o.root_pos, &a.root_pos);
+    mix(&mut o.root_linvel, &a.root_linvel);
+    mix(&mut o.root_angvel, &a.root_angvel);
+    mix(&mut o.joint_rot, &a.joint_rot);
+    mix(&mut o.joint_vel, &a.joint_vel);
+    mix(&mut o.body_pos, &a.body_pos);
+    mix(&mut o.body_vel, &a.body_vel);
+    mix(&mut o.obj_pos, &a.obj_pos);
+    mix(&mut o.obj_linvel, &a.obj_linvel);
+    mix(&mut o.obj_angvel, &a.obj_angvel);
+    let nlerp = |q: &mut [f32], p: &[f32]| {
+        let sign = if q.iter().zip(p).map(|(x, y)| x * y).sum::<f32>() < 0.0 {
+            -1.0
+        } else {
+            1.0
+        };
+        let mut m = [0f32; 4];
+        for c in 0..4 {
+            m[c] = p[c] + w * (sign * q[c] - p[c]);
+        }
+        let n = m.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
+        for c in 0..4 {
+            q[c] = m[c] / n;
+        }
+    };
+    nlerp(&mut o.root_rot, &a.root_rot);
+    o.root_rot_expmap = quat::to_expmap(o.root_rot.map(|v| v as f64)).map(|v| v as f32);
+    for (q, p) in o.obj_rot.chunks_exact_mut(4).zip(a.obj_rot.chunks_exact(4)) {
+        nlerp(q, p);
+    }
+    o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(x: f32, yaw: f32, arm: f32) -> State {
+        let (s, c) = (yaw / 2.0).sin_cos();
+        State {
+            root_pos: [x, 0.0, 0.9],
+            root_rot: [0.0, 0.0, s, c],
+            root_rot_expmap: [0.0, 0.0, yaw],
+            joint_rot: vec![arm, 0.0, 0.0],
+            joint_vel: vec![0.0; 3],
+            // one body 0.5 m ahead of the root along its heading
+            body_pos: vec![x + 0.5 * yaw.cos(), 0.5 * yaw.sin(), 1.0],
+            body_vel: vec![0.0; 3],
+            obj_pos: vec![x, 0.0, 0.12],
+            obj_rot: vec![0.0, 0.0, 0.0, 1.0],
+            obj_linvel: vec![0.0; 3],
+            obj_angvel: vec![0.0; 3],
+            ..State::default()
+        }
+    }
+
+    #[test]
+    fn a_blend_moves_from_the_old_frame_aligned_onto_the_new_one() {
+        // the old clip ended 3 m away, facing +y, arm at 0.4 rad; the new
+        // frame faces +x with the arm at 0
+        let from = frame(3.0, std::f32::consts::FRAC_PI_2, 0.4);
+        let to = frame(0.0, 0.0, 0.0);
+        let close = |a: f32, b: f32| (a - b).abs() < 1e-5;
+        let all = blend(&from, &to, 1.0);
+        assert_eq!(all.joint_rot, to.joint_rot);
+        assert!(all
+            .body_pos
+            .iter()
+            .zip(&to.body_pos)
+            .all(|(a, b)| close(*a, *b)));
+        // weight 0: the old frame, moved onto the new root and heading, so
+        // only the pose differs
+        let none = blend(&from, &to, 0.0);
+        assert!(close(none.joint_rot[0], 0.4));
+        assert!(close(none.root_pos[0], 0.0) && close(none.root_pos[1], 0.0));
+        assert!(close(none.body_pos[0], 0.5) && close(none.body_pos[1], 0.0));
+        assert!(close(none.root_rot[3].abs(), 1.0));
+        // halfway: the joint halfway, the rotation a unit quaternion
+        let half = blend(&from, &to, 0.5);
+        assert!(close(half.joint_rot[0], 0.2));
+        let n: f32 = half.root_rot.iter().map(|v| v * v).sum();
+        assert!(close(n, 1.0));
+    }
 }

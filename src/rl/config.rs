@@ -169,6 +169,16 @@ pub struct TrainConfig {
     /// actions and the warm start's targets). Not written when 0.
     #[serde(skip_serializing_if = "is_zero")]
     pub feed_forward_lead: f32,
+    /// Steps over which a continued reference blends from the frame its
+    /// clip ended on into the frames after the seam
+    /// ([`crate::rl::humanoid::EnvConfig::seam_blend_steps`]; 0 = a jump).
+    /// Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_usize")]
+    pub seam_blend_steps: usize,
+}
+
+fn is_zero_usize(x: &usize) -> bool {
+    *x == 0
 }
 
 fn is_zero(x: &f32) -> bool {
@@ -258,6 +268,7 @@ impl Default for TrainConfig {
             residual_action: false,
             reference_obs: false,
             feed_forward_lead: 0.0,
+            seam_blend_steps: 0,
         }
     }
 }
@@ -316,6 +327,7 @@ impl crate::config::Validate for TrainConfig {
         c.range("p_e", self.p_e, 0.0, 1.0)?;
         c.range("p_n", self.p_n, 0.0, 1.0)?;
         c.range("feed_forward_lead", self.feed_forward_lead as f64, 0.0, 5.0)?;
+        c.count("seam_blend_steps", self.seam_blend_steps as u64, 0, 1000)?;
         c.count("num_envs", self.envs() as u64, 1, 1 << 20)?;
         c.count("horizon", self.steps() as u64, 1, 1 << 20)?;
         c.count("samples", self.samples, 1, u64::MAX)?;

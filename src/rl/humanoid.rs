@@ -173,6 +173,10 @@ pub struct EnvConfig {
     /// next frame's joint exp-maps e_{t+1} alone (0), to make up for the
     /// PD controller's lag behind a moving target.
     pub feed_forward_lead: f32,
+    /// Continued frames blended with the old clip's last frame after a seam
+    /// ([`crate::augment::seam::blend`], weights 1/(K+1) .. K/(K+1) on the
+    /// new frames); 0 = the reference jumps to the seam frame.
+    pub seam_blend_steps: usize,
 }
 
 impl EnvConfig {
@@ -200,6 +204,7 @@ impl EnvConfig {
             residual_action: false,
             reference_obs: false,
             feed_forward_lead: 0.0,
+            seam_blend_steps: 0,
         }
     }
 }
@@ -479,6 +484,9 @@ struct Episode {
     /// Steps after the trajectory's own, continued past clip ends, each
     /// with the move that anchors its reference frame.
     cont: Vec<(Step, Option<Anchor>)>,
+    /// Per continued step: the frame the old clip ended on and the weight
+    /// of the new frame, for the steps blended after a seam.
+    blend: Vec<Option<(std::sync::Arc<State>, f32)>>,
     /// A seam whose masked steps are running: its frames follow them,
     /// anchored where the character is when they end.
     pending: Option<Seam>,
@@ -804,6 +812,7 @@ impl Ctx<'_> {
         };
         let ep = Episode {
             cont: Vec::new(),
+            blend: Vec::new(),
             pending: None,
             class,
             weights,
@@ -965,9 +974,14 @@ impl Ctx<'_> {
         let r = self
             .lib
             .state(st.ref_clip? as usize, st.ref_frame? as usize)?;
-        Some(match anchor {
+        let r = match anchor {
             Some(m) => reward::apply_alignment(&r, m.yaw, m.pivot, m.to),
             None => r,
+        };
+        let own = ep.traj.steps.len();
+        Some(match t.checked_sub(own).and_then(|i| ep.blend.get(i)) {
+            Some(Some((from, w))) => crate::augment::seam::blend(from, &r, *w),
+            _ => r,
         })
     }
 
@@ -1024,6 +1038,7 @@ impl Ctx<'_> {
         let room = total - ep.t;
         ep.cont
             .extend(std::iter::repeat_n((inserted, None), n.min(room)));
+        ep.blend.resize(ep.cont.len(), None);
         ep.pending = Some(seam);
     }
 
@@ -1045,6 +1060,10 @@ impl Ctx<'_> {
         let room = self.cfg.continue_steps - ep.t;
         let cf = &self.lib.frames[c2];
         let end = cf.last_valid().unwrap_or(0);
+        let from = (self.cfg.seam_blend_steps > 0)
+            .then(|| self.reference(ep, ep.t))
+            .flatten()
+            .map(std::sync::Arc::new);
         let steps = (first..=end).take(room).map(|f| {
             (
                 Step {
@@ -1055,7 +1074,15 @@ impl Ctx<'_> {
                 Some(anchor),
             )
         });
+        let start = ep.cont.len();
         ep.cont.extend(steps);
+        ep.blend.resize(ep.cont.len(), None);
+        if let Some(from) = from {
+            let k = self.cfg.seam_blend_steps;
+            for (i, b) in ep.blend[start..].iter_mut().take(k).enumerate() {
+                *b = Some((from.clone(), (i + 1) as f32 / (k + 1) as f32));
+            }
+        }
     }
 
     /// What the success rules see of `s`.
@@ -1736,7 +1763,10 @@ mod tests {
         // world +x is the character's -y (its right)
         for k in 0..18 {
             let d = &out[1 + 3 * k..4 + 3 * k];
-            assert!(close(d[0], 0.0) && close(d[1], -1.0) && close(d[2], 0.0), "{d:?}");
+            assert!(
+                close(d[0], 0.0) && close(d[1], -1.0) && close(d[2], 0.0),
+                "{d:?}"
+            );
         }
         // heading difference -90 degrees
         assert!(close(out[55], 0.0) && close(out[56], -1.0));

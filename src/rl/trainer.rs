@@ -217,6 +217,7 @@ pub fn environment<'a>(
         residual_action: cfg.residual_action,
         reference_obs: cfg.reference_obs,
         feed_forward_lead: cfg.feed_forward_lead,
+        seam_blend_steps: cfg.seam_blend_steps,
         nsi_follow: cfg.nsi && !cfg.stf,
         ats: cfg.ats,
         ats_params: s.ats_params,

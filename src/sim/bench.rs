@@ -82,7 +82,11 @@ pub fn with_and_without_fingers(full: &Model) -> Vec<(&'static str, Model, Vec<u
     let hands = super::world::hand_bodies(full);
     let (no_fingers, kept) = full.without(|b| b.parent.is_some_and(|p| hands[p]));
     vec![
-        ("full (with fingers)", full.clone(), (0..full.bodies.len()).collect()),
+        (
+            "full (with fingers)",
+            full.clone(),
+            (0..full.bodies.len()).collect(),
+        ),
         ("without fingers", no_fingers, kept),
     ]
 }

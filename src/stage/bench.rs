@@ -87,7 +87,11 @@ fn sim(repeat: usize, data_root: Option<PathBuf>, opts: &SimOptions) -> Result<(
     let tmp = tempfile::tempdir()?;
     let out = tmp.path().join("ballplay");
     super::ingest::run(
-        &super::Common::new(StageArgs::for_dataset(out.clone(), "ballplay", data_root.clone()))?,
+        &super::Common::new(StageArgs::for_dataset(
+            out.clone(),
+            "ballplay",
+            data_root.clone(),
+        ))?,
         false,
     )?;
     let lib = crate::table::load_library(&out)?;

@@ -140,4 +140,3 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
     }
     Ok(())
 }
-
