@@ -568,7 +568,9 @@ fn blended_seams_turn_the_jump_into_a_transition() {
         let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
         env.set_recording(true);
         let zeros = vec![0f32; n * env.act_dim()];
-        let mut last: Vec<Option<((u32, u32), Vec<f32>)>> = vec![None; n];
+        // per env: the last reference (clip, frame) and its body positions
+        type Last = Option<((u32, u32), Vec<f32>)>;
+        let mut last: Vec<Last> = vec![None; n];
         // each episode's first seam only: later the character has fallen
         // under zero actions, and the anchor moves the reference to it
         let mut seen = vec![false; n];
