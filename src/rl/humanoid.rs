@@ -15,7 +15,11 @@
 //!   skill class; optionally the 3-D history embedding of the frozen encoder
 //!   (`skillmimic1_hist.py`: computed from the 60 feature frames *before* the
 //!   current one is appended; at a reset the history is the reference clip's
-//!   frames before the start frame).
+//!   frames before the start frame). Options, off by default: the next
+//!   reference frame relative to the character ([`write_reference_obs`],
+//!   before the embedding), and residual actions around the next reference
+//!   pose ([`EnvConfig::residual_action`]); docs/training.md has what they
+//!   measured.
 //! - Reward: the paper's timing r_t = S(s_{t+1}, ŝ_{t+1}) (Eq. 12 with the
 //!   post-step state against the next reference frame), not the reference
 //!   code's one-step lag (`_hook_post_step` in `skillmimic1.py`). SM
@@ -40,7 +44,9 @@
 //!   `skillmimic/learning/common_agent.py` does). With `continue_steps` a
 //!   reference that reaches its clip's end continues from the clip's seam
 //!   ([`crate::augment::seam`]), anchored to where the character is, so the
-//!   episode runs its full length (the reference code stops at the clip's end).
+//!   episode runs its full length (the reference code stops at the clip's end);
+//!   `seam_blend_steps` blends the first frames after a seam
+//!   ([`crate::augment::seam::blend`]).
 //! - Contacts are read after every physics substep of a policy step
 //!   ([`World::step_with_contacts`]); the ball-hands edge of the reward
 //!   follows [`crate::reward::ContactDetect`].
@@ -810,7 +816,7 @@ impl Ctx<'_> {
             }
             None => (Vec::new(), Vec::new()),
         };
-        let ep = Episode {
+        let mut ep = Episode {
             cont: Vec::new(),
             blend: Vec::new(),
             pending: None,
@@ -828,7 +834,6 @@ impl Ctx<'_> {
             ff: Vec::new(),
             next_ref: None,
         };
-        let mut ep = ep;
         if self.cfg.residual_action {
             ep.ff = feed_forward(&g.joint_rot);
         }
