@@ -12,7 +12,8 @@ by group (legs, trunk, arms, fingers; rad), the ball's distance from the
 root against the reference's (m), the ball's distance to the reference ball
 (m) and the SM reward. Reference positions are the clip's own (not moved by
 a continuation's anchor), so use it on steps before the first seam or on
-cells without continuation (`nr`).
+cells without continuation (`nr`). BallPlay only: the body groups are those
+of its 53-body humanoid and the ball is object 0.
 """
 import sys
 

@@ -217,3 +217,39 @@ fn report_renders_a_committed_summary_as_the_golden_table() {
         .unwrap()
         .contains("TSR DL-DR | TSR DF-DR | TSR DF-Shot | TSR Layup-DF"));
 }
+
+#[test]
+fn a_policy_that_needs_its_reference_gets_it_continued_in_every_trial_cell() {
+    // residual actions / the reference observation: SR, eps-NSR and TSR
+    // trials continue the reference to their length; NR and every cell of a
+    // plain policy stop at the clip's end, as before
+    use skillaug::eval::evaluator::{load_policy, plan_cells, EvalConfig};
+    let (dir, run) = ingested("ballplay");
+    let from = run.to_str().unwrap();
+    let lib = skillaug::table::load_library(&run).unwrap();
+    let cfg = EvalConfig {
+        metrics: ["sr", "nsr", "nr", "tsr"].map(String::from).to_vec(),
+        ..EvalConfig::default()
+    };
+    for (name, extra) in [
+        ("plain", vec![]),
+        ("res", vec!["--set", "train.residual_action=true"]),
+        ("ref", vec!["--set", "train.reference_obs=true"]),
+    ] {
+        let pol = dir.path().join(name);
+        tiny_train(from, pol.to_str().unwrap(), &extra);
+        let (meta, _, _) = load_policy(&pol, &lib, &run).unwrap();
+        let (cells, _) = plan_cells(&cfg, &meta, &lib);
+        assert!(
+            cells.iter().any(|c| c.metric == "tsr"),
+            "{name}: no TSR cell"
+        );
+        for c in &cells {
+            let want = match (name, c.metric) {
+                ("plain", _) | (_, "nr") => 0,
+                _ => c.env.fixed_length.unwrap(),
+            };
+            assert_eq!(c.env.continue_steps, want, "{name} {} {}", c.metric, c.to);
+        }
+    }
+}

@@ -85,8 +85,10 @@ pub fn seams(lib: &MotionLib, w: &Weights, min_loop: usize) -> Vec<Option<Seam>>
 /// normalised linear interpolation of the quaternions (signs matched);
 /// contact flag from `to`. Blending the first K frames after a seam with
 /// weights 1/(K+1), ..., K/(K+1) turns the jump to a dissimilar seam frame
-/// into a transition over K steps, as motion graphs blend their
-/// transitions (Kovar et al. 2002, Section 3.2).
+/// into a transition over K steps. Unlike a motion graph's transition
+/// (Kovar et al. 2002, Section 3.2, where both motions keep advancing over
+/// the window) the old clip has no frames left here, so its last frame is
+/// held, only moved onto each new root.
 pub fn blend(from: &State, to: &State, w: f32) -> State {
     let a = reward::align_to(to, from, Align::default());
     let mut o = to.clone();

@@ -426,9 +426,16 @@ pub fn plan_cells(
             let Some(r) = Rule::of_skill(&b, shot_target(lib, &b)) else {
                 continue;
             };
+            // a policy that needs its reference follows the first skill's,
+            // continued, while the condition asks for the second
             let env = EnvConfig {
                 fixed_length: Some(steps(r)),
                 condition: Some(class_of(&b)),
+                continue_steps: if t.residual_action || t.reference_obs {
+                    steps(r)
+                } else {
+                    0
+                },
                 ..base.clone()
             };
             cells.push(cell("tsr", &a, &b, Some(r), env));

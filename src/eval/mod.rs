@@ -21,6 +21,7 @@ pub fn wilson(k: usize, n: usize) -> (f64, f64) {
 }
 
 /// The label of a policy from its switches: "SM", "DM+eNSI", "SM+STG+STF+ATS+HE", ...
+/// ("+Res" and "+RefObs" for residual actions and the reference observation).
 pub fn method_label(t: &crate::rl::config::TrainConfig) -> String {
     let mut s = match t.method {
         crate::rl::humanoid::Method::Sm => "SM".to_string(),
@@ -32,6 +33,8 @@ pub fn method_label(t: &crate::rl::config::TrainConfig) -> String {
         (t.stf, "STF"),
         (t.ats, "ATS"),
         (t.he, "HE"),
+        (t.residual_action, "Res"),
+        (t.reference_obs, "RefObs"),
     ] {
         if on {
             s.push('+');

@@ -133,7 +133,8 @@ pub struct TrainConfig {
     /// Fall heights of single skills replacing `fall_height`, m.
     pub fall_height_by_skill: std::collections::BTreeMap<String, f32>,
     /// Warm start: epochs of behaviour cloning of the policy mean onto the
-    /// next reference frame's joint rotations before PPO (0 = off; see
+    /// next reference frame's joint rotations (zero with `residual_action`)
+    /// before PPO (0 = off; see
     /// [`crate::rl::humanoid::HumanoidEnv::warm_start_data`]; on by default, docs/training.md).
     pub warm_start_epochs: usize,
     /// ε-perturbed copies of each reference state in the warm-start data.

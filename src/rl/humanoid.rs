@@ -161,23 +161,31 @@ pub struct EnvConfig {
     /// Masked steps at a seam at least (Eq. 20 gives N = 0 for every
     /// β > 0.1; 0 = Eq. 20 alone).
     pub seam_masked_min: u32,
-    /// Residual actions: the PD targets are the next reference frame's
-    /// joint rotations plus π·a (the action offsets the reference pose, as
-    /// in UHC, Luo et al. 2021, Section 3.2) instead of π·a alone (Eq. 11,
-    /// the reference code). The next frame is the one the episode's
-    /// reference reaches at the coming step; at a masked step the last
-    /// one is kept, at the start of an episode without one the start's
-    /// own pose.
+    /// Residual actions: the PD targets are π·clamp(a + e/π, −1, 1) with e
+    /// the next reference frame's joint exp-maps (the action offsets the
+    /// reference pose component by component, as UHC's policy corrects its
+    /// reference, Luo et al. 2021, Section 3.2) instead of π·a alone (Eq. 11,
+    /// the reference code); targets saturate at ±π rad. The next frame is
+    /// the one the episode's reference reaches at the coming step; at a
+    /// masked step the last one is kept, at the start of an episode without
+    /// one the start's own pose.
     pub residual_action: bool,
     /// Append the next reference frame to the observation
-    /// ([`reference_obs_dim`], [`write_reference_obs`]), as tracking
-    /// controllers do (DeepMimic's phase, PHC's target state: Luo et al.
-    /// 2023, Section 3); off = the skill condition alone (the paper, B.1).
+    /// ([`reference_obs_dim`], [`write_reference_obs`]; after the skill
+    /// condition, before the history embedding), as tracking controllers
+    /// do (DeepMimic's phase, PHC's target state: Luo et al. 2023,
+    /// Section 3); off = the skill condition alone (the paper, B.1). During
+    /// a seam's masked steps and on the last step of an episode it shows
+    /// the last frame known; zeros until an episode has one (a start with
+    /// masked steps); the object offsets are zero for classes without an
+    /// object.
     pub reference_obs: bool,
-    /// Lead of the feed-forward PD targets (residual actions and the warm
-    /// start's targets): e_{t+1} + lead·(e_{t+1} − e_t) instead of the
-    /// next frame's joint exp-maps e_{t+1} alone (0), to make up for the
-    /// PD controller's lag behind a moving target.
+    /// Lead of the feed-forward PD targets, in frames (residual actions and
+    /// the warm start's targets): e_{t+1} + lead·(e_{t+1} − e_t) instead of
+    /// the next frame's joint exp-maps e_{t+1} alone (0), to make up for the
+    /// PD controller's lag behind a moving target. Only between consecutive
+    /// frames of one clip under one anchor: not across a seam, after masked
+    /// steps or at an episode's first step.
     pub feed_forward_lead: f32,
     /// Continued frames blended with the old clip's last frame after a seam
     /// ([`crate::augment::seam::blend`], weights 1/(K+1) .. K/(K+1) on the
@@ -288,7 +296,9 @@ fn tan_norm(q: Rotation) -> [f32; 6] {
 
 /// Write the observation of `w` (in state `s`, after a step that produced
 /// `contacts`, or `None` right after a reset) for skill class `class` into
-/// `out` (length [`obs_dim`]); the history-embedding slots are left at 0.
+/// `out` (length [`obs_dim`], plus [`reference_obs_dim`] with the
+/// reference observation); the slots after the condition (reference block,
+/// history embedding) are left at 0.
 pub fn write_observation(
     w: &World,
     s: &State,
@@ -496,6 +506,9 @@ struct Episode {
     /// A seam whose masked steps are running: its frames follow them,
     /// anchored where the character is when they end.
     pending: Option<Seam>,
+    /// With `seam_blend_steps`: the reference frame the old clip ended on,
+    /// kept through a seam's masked steps for the blend after them.
+    pending_from: Option<std::sync::Arc<State>>,
     class: u32,
     /// Training-reward weights of this episode (object terms off for classes 0/10).
     weights: Weights,
@@ -820,6 +833,7 @@ impl Ctx<'_> {
             cont: Vec::new(),
             blend: Vec::new(),
             pending: None,
+            pending_from: None,
             class,
             weights,
             sm_weights,
@@ -949,7 +963,18 @@ impl Ctx<'_> {
         if let Some(r) = self.reference(ep, ep.t + 1) {
             if res {
                 let lead = self.cfg.feed_forward_lead;
-                let e = match self.reference(ep, ep.t).filter(|_| lead != 0.0) {
+                // a lead only along one clip: never across a seam's jump
+                let along = |t: usize| ep.step_at(t).map(|(st, a)| (st.ref_clip, st.ref_frame, a));
+                let consecutive = match (along(ep.t), along(ep.t + 1)) {
+                    (Some((c0, Some(f0), a0)), Some((c1, Some(f1), a1))) => {
+                        c0 == c1 && f1 == f0 + 1 && a0 == a1
+                    }
+                    _ => false,
+                };
+                let e = match self
+                    .reference(ep, ep.t)
+                    .filter(|_| lead != 0.0 && consecutive)
+                {
                     Some(now) => lead_target(&now.joint_rot, &r.joint_rot, lead),
                     None => r.joint_rot.clone(),
                 };
@@ -967,9 +992,14 @@ impl Ctx<'_> {
         if !self.cfg.reference_obs {
             return;
         }
-        let base = obs_dim(self.sk, s.obj_pos.len() / 3, 0);
-        let n = reference_obs_dim(s.obj_pos.len() / 3);
-        write_reference_obs(s, ep.next_ref.as_ref(), self.sk, &mut out[base..base + n]);
+        let k = self.objects.len();
+        let base = obs_dim(self.sk, k, 0);
+        let block = &mut out[base..base + reference_obs_dim(k)];
+        write_reference_obs(s, ep.next_ref.as_ref(), self.sk, block);
+        if no_object_class(ep.class) {
+            // the ball is parked out of play: no offset to show
+            block[60..].fill(0.0);
+        }
     }
 
     /// The reference state of `ep`'s step `t` (anchored when continued);
@@ -1016,7 +1046,8 @@ impl Ctx<'_> {
             return;
         }
         if let Some(seam) = ep.pending.take() {
-            self.follow_seam(ep, s, seam, seam.to_frame as usize);
+            let from = ep.pending_from.take();
+            self.follow_seam(ep, s, seam, seam.to_frame as usize, from);
             return;
         }
         let Some((last, _)) = ep.step_at(ep.t) else {
@@ -1031,8 +1062,13 @@ impl Ctx<'_> {
             return;
         };
         let n = n.max(self.cfg.seam_masked_min) as usize;
+        // the frame the old clip ends on, for a blend after the seam
+        let from = (self.cfg.seam_blend_steps > 0)
+            .then(|| self.reference(ep, ep.t))
+            .flatten()
+            .map(std::sync::Arc::new);
         if n == 0 {
-            self.follow_seam(ep, s, seam, seam.to_frame as usize + 1);
+            self.follow_seam(ep, s, seam, seam.to_frame as usize + 1, from);
             return;
         }
         let inserted = Step {
@@ -1045,12 +1081,20 @@ impl Ctx<'_> {
             .extend(std::iter::repeat_n((inserted, None), n.min(room)));
         ep.blend.resize(ep.cont.len(), None);
         ep.pending = Some(seam);
+        ep.pending_from = from;
     }
 
     /// Append the frames of `seam`'s clip from `first` to its last valid
     /// frame (at most to the episode's length), moved so that the seam
     /// frame's root x, y and heading are `s`'s.
-    fn follow_seam(&self, ep: &mut Episode, s: &State, seam: Seam, first: usize) {
+    fn follow_seam(
+        &self,
+        ep: &mut Episode,
+        s: &State,
+        seam: Seam,
+        first: usize,
+        from: Option<std::sync::Arc<State>>,
+    ) {
         let (c2, j) = (seam.to_clip as usize, seam.to_frame as usize);
         let Some(target) = self.lib.state(c2, j) else {
             return;
@@ -1065,10 +1109,6 @@ impl Ctx<'_> {
         let room = self.cfg.continue_steps - ep.t;
         let cf = &self.lib.frames[c2];
         let end = cf.last_valid().unwrap_or(0);
-        let from = (self.cfg.seam_blend_steps > 0)
-            .then(|| self.reference(ep, ep.t))
-            .flatten()
-            .map(std::sync::Arc::new);
         let steps = (first..=end).take(room).map(|f| {
             (
                 Step {
@@ -1250,8 +1290,10 @@ impl<'a> HumanoidEnv<'a> {
     /// class, [`crate::augment::stf::perturb`], bodies by forward
     /// kinematics); the target of each is the action whose PD targets are
     /// the joint rotations of ŝ_{f+1} (a = e / π, clamped to [-1, 1]; the
-    /// simulator maps a to π a, [`World::apply_action`]). Returns (`N * obs_dim`
-    /// observations, `N * act_dim` targets).
+    /// simulator maps a to π a, [`World::apply_action`]; extrapolated by
+    /// [`EnvConfig::feed_forward_lead`]), or zero with
+    /// [`EnvConfig::residual_action`] (the feed-forward part already holds
+    /// ŝ_{f+1}). Returns (`N * obs_dim` observations, `N * act_dim` targets).
     pub fn warm_start_data(
         &self,
         clips: &[usize],
@@ -1780,6 +1822,16 @@ mod tests {
         // no reference yet: zeros
         write_reference_obs(&s, None, sk, &mut out);
         assert!(out.iter().all(|v| *v == 0.0));
+    }
+
+    #[test]
+    fn a_lead_extrapolates_along_the_step_and_zero_is_the_next_frame() {
+        let (now, next) = ([0.1, -0.2, 0.0], [0.2, -0.1, 0.5]);
+        assert_eq!(lead_target(&now, &next, 0.0), next.to_vec());
+        let two = lead_target(&now, &next, 2.0);
+        for (v, want) in two.iter().zip([0.4, 0.1, 1.5]) {
+            assert!((v - want).abs() < 1e-6, "{two:?}");
+        }
     }
 
     #[test]

@@ -877,7 +877,48 @@ impl<'a> Trainer<'a> {
             } else {
                 String::new()
             }
-        )
+        ) + &self.options()
+    }
+
+    /// The tracking options that are on, as `, residual_action ...` (empty
+    /// when none is), with a note where one has no effect.
+    fn options(&self) -> String {
+        let cfg = &self.cfg;
+        let mut on = Vec::new();
+        if cfg.residual_action {
+            on.push("residual_action".to_string());
+        }
+        if cfg.reference_obs {
+            on.push("reference_obs".to_string());
+        }
+        if cfg.feed_forward_lead != 0.0 {
+            let idle = !cfg.residual_action && cfg.warm_start_epochs == 0;
+            on.push(format!(
+                "feed_forward_lead={}{}",
+                cfg.feed_forward_lead,
+                if idle {
+                    " (no effect: no residual actions, no warm start)"
+                } else {
+                    ""
+                }
+            ));
+        }
+        if cfg.seam_blend_steps > 0 {
+            on.push(format!(
+                "seam_blend_steps={}{}",
+                cfg.seam_blend_steps,
+                if cfg.continuation {
+                    ""
+                } else {
+                    " (no effect: continuation off)"
+                }
+            ));
+        }
+        if on.is_empty() {
+            String::new()
+        } else {
+            format!(", {}", on.join(", "))
+        }
     }
 
     /// Iterations done.

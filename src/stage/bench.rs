@@ -64,8 +64,7 @@ fn ingest(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
             times.push(s);
             *total += s;
         }
-        let lib = crate::table::load_library(&out)?;
-        let frames: u64 = lib.frames.iter().map(|f| f.frames as u64).sum();
+        let frames = crate::table::clips::total_frames(&out.join("clips.parquet"))?;
         all_frames += frames;
         let m = median(times);
         println!(

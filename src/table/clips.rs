@@ -145,3 +145,27 @@ pub fn read(path: &std::path::Path) -> Result<Vec<ClipRow>> {
     }
     Ok(rows)
 }
+
+/// The sum of the `frames` column of the clips table at `path` (every row
+/// of every batch), without the checks [`super::load_library`] makes.
+///
+/// # Errors
+/// When the file cannot be read as Parquet.
+pub fn total_frames(path: &std::path::Path) -> Result<u64> {
+    use arrow::array::AsArray;
+    Ok(super::io::read_parquet(path)?
+        .batches
+        .iter()
+        .map(|b| {
+            b.column_by_name("frames")
+                .map(|c| {
+                    c.as_primitive::<arrow::datatypes::UInt32Type>()
+                        .values()
+                        .iter()
+                        .map(|v| *v as u64)
+                        .sum::<u64>()
+                })
+                .unwrap_or(0)
+        })
+        .sum())
+}

@@ -50,7 +50,7 @@ pub fn columns() -> Vec<ColumnSpec> {
         ColumnSpec::new("to_skill", Utf8, false, "condition / rule skill of the cell"),
         ColumnSpec::new("trial", UInt32, false, "trial within the cell, as in eval_trials.parquet"),
         ColumnSpec::new("step", UInt32, false, "policy step, 1-based: the simulated state after the step's action"),
-        ColumnSpec::new("ref_clip", UInt32, true, "clip of the reference frame the step was scored against (clips.parquet clip_id); null when masked or past the clip's end"),
+        ColumnSpec::new("ref_clip", UInt32, true, "clip of the reference frame the step was scored against (clips.parquet clip_id); null when masked or past the clip's end; for a policy evaluated with its reference continued (train.residual_action, train.reference_obs) the continued clip's frame, which the trial sees moved to the character and blended after a seam"),
         ColumnSpec::new("ref_frame", UInt32, true, "frame of that reference frame"),
         ColumnSpec::new("masked", Boolean, false, "the step had no reward target"),
         ColumnSpec::new("sm_reward", Float64, true, "SM reward of the step; null when masked"),
