@@ -3,7 +3,7 @@
 //! environment-agnostic vectorised environment interface ([`VecEnv`]) with a
 //! rollout collector ([`collect`]), and a small control task to test the
 //! learner on ([`pointmass`]); the trainer ([`trainer`]) and its timing
-//! ([`bench`]).
+//! ([`mod@bench`]).
 //!
 //! Reference facts followed (SkillMimic / SkillMimic-V2 released code:
 //! Ingrid789/SkillMimic-V2 `skillmimic/data/cfg/train/rlg/skillmimic.yaml` and

@@ -1,7 +1,7 @@
 //! The simulated humanoid: the MJCF model ([`mjcf`]), one rapier3d world
 //! ([`world`]), its objects ([`objects`]) and a vectorised environment of
 //! independent worlds stepped in parallel ([`vec_env`]), with accuracy
-//! ([`checks`]) and speed ([`bench`]) measurements.
+//! ([`checks`]) and speed ([`mod@bench`]) measurements.
 
 pub mod bench;
 pub mod checks;
