@@ -224,6 +224,11 @@ pub struct PpoOverrides {
     pub normalize_value: Option<bool>,
     /// Adaptive learning rate around this KL ([`PpoConfig::kl_threshold`]).
     pub kl_threshold: Option<f64>,
+    /// Policy head weights drawn from U(-b, b) ([`PpoConfig::policy_out_bound`];
+    /// default 0.01); 0 = PyTorch's default `Linear` initialisation, as
+    /// SkillMimic's released code. Not written when unset.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub policy_out_bound: Option<f64>,
 }
 
 impl Default for TrainConfig {
@@ -318,6 +323,9 @@ impl TrainConfig {
         if o.kl_threshold.is_some() {
             c.kl_threshold = o.kl_threshold;
         }
+        if let Some(b) = o.policy_out_bound {
+            c.policy_out_bound = (b > 0.0).then_some(b);
+        }
         c
     }
 }
@@ -339,6 +347,9 @@ impl crate::config::Validate for TrainConfig {
         c.non_negative("seam_min_loop_s", self.seam_min_loop_s)?;
         c.count("seam_masked_min", self.seam_masked_min as u64, 0, 10_000)?;
         c.non_negative("term_key_distance", self.term_key_distance)?;
+        if let Some(b) = self.ppo.policy_out_bound {
+            c.non_negative("ppo.policy_out_bound", b)?;
+        }
         c.non_negative("term_object_distance", self.term_object_distance)?;
         for (skill, h) in &self.fall_height_by_skill {
             c.finite(&format!("fall_height_by_skill.{skill}"), *h as f64)?;
@@ -434,4 +445,27 @@ fn one_rank() -> usize {
 
 fn is_one(n: &usize) -> bool {
     *n == 1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_policy_head_bound_is_a_recipe_key_and_zero_means_the_pytorch_default() {
+        let mut cfg = TrainConfig::default();
+        assert_eq!(cfg.ppo_config().policy_out_bound, Some(0.01));
+        cfg.ppo.policy_out_bound = Some(0.0);
+        assert_eq!(cfg.ppo_config().policy_out_bound, None);
+        cfg.ppo.policy_out_bound = Some(0.1);
+        assert_eq!(cfg.ppo_config().policy_out_bound, Some(0.1));
+        use crate::config::Validate;
+        assert!(cfg.validate("train").is_ok());
+        cfg.ppo.policy_out_bound = Some(-1.0);
+        let e = cfg.validate("train").unwrap_err().to_string();
+        assert!(e.contains("train.ppo.policy_out_bound"), "{e}");
+        // unset, it is not written: older settings hash alike
+        let text = toml::to_string(&TrainConfig::default()).unwrap();
+        assert!(!text.contains("policy_out_bound"), "{text}");
+    }
 }

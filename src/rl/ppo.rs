@@ -10,8 +10,8 @@
 //!   (`skillmimic_network_builder.py`; rl_games
 //!   `rl_games/algos_torch/network_builder.py`). The policy head is drawn from
 //!   `U(-0.01, 0.01)` by default so that first actions are near 0
-//!   (`policy_out_bound`; set it to `null` for SkillMimic's plain PyTorch
-//!   default head).
+//!   (`policy_out_bound`; `train.ppo.policy_out_bound = 0` gives SkillMimic's
+//!   plain PyTorch default head).
 //! * σ fixed: log σ = −2.9, σ ≈ 0.055 **standard deviation**. The paper calls
 //!   0.055 a "variance"; the released code (`sigma_init` -2.9 with
 //!   `fixed_sigma` in `skillmimic.yaml`) uses it as the std, and so do we by
