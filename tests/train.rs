@@ -23,6 +23,15 @@ const TINY: &[&str] = &[
     "-q",
 ];
 
+/// The BallPlay clips ingested into a temporary folder (kept alive by the
+/// returned guard) and the environment set-up of `cfg` over them.
+fn ballplay_setup(cfg: &TrainConfig) -> (tempfile::TempDir, skillaug::rl::trainer::Setup) {
+    let (dir, run) = ingested("ballplay");
+    let common = common_for(&run, dir.path().join("x"));
+    let s = setup(&common, cfg).unwrap();
+    (dir, s)
+}
+
 fn train_args<'a>(from: &'a str, out: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
     let mut v = vec!["train", "--from", from, "--out", out];
     v.extend_from_slice(TINY_TRAIN);
@@ -301,8 +310,6 @@ fn the_history_encoder_adds_three_observation_dimensions() {
 #[test]
 #[allow(clippy::needless_range_loop)] // several per-env arrays side by side
 fn episodes_end_by_falls_below_the_threshold_and_by_their_length() {
-    let (dir, run) = ingested("ballplay");
-    let common = common_for(&run, dir.path().join("x"));
     let cfg = TrainConfig {
         skills: vec!["run".into(), "layup".into()],
         // falls and lengths alone (tracking failures: their own test)
@@ -311,7 +318,7 @@ fn episodes_end_by_falls_below_the_threshold_and_by_their_length() {
         continuation: false,
         ..TrainConfig::default()
     };
-    let s = setup(&common, &cfg).unwrap();
+    let (_dir, s) = ballplay_setup(&cfg);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
     let n = 6;
     let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
@@ -447,8 +454,6 @@ fn seams_take_at_least_the_asked_masked_steps() {
 /// `masked_min` masked steps, as the DF seams have N = 0 by Eq. 20), and
 /// the continued reference starts where the character stands.
 fn continue_past_the_clip_end(masked_min: u32) {
-    let (dir, run) = ingested("ballplay");
-    let common = common_for(&run, dir.path().join("x"));
     let cfg = TrainConfig {
         skills: vec!["run".into()],
         episode_length: 200,
@@ -456,7 +461,7 @@ fn continue_past_the_clip_end(masked_min: u32) {
         seam_masked_min: masked_min,
         ..TrainConfig::default()
     };
-    let s = setup(&common, &cfg).unwrap();
+    let (_dir, s) = ballplay_setup(&cfg);
     // every seam frame leaves a loop of at least seam_min_loop_s (30 frames)
     for (c, seam) in s.seams.iter().enumerate() {
         let seam = seam.expect("every BallPlay clip has a seam");
@@ -549,15 +554,13 @@ fn continue_past_the_clip_end(masked_min: u32) {
 fn blended_seams_turn_the_jump_into_a_transition() {
     // The largest step-to-step move of the reference's bodies at a seam:
     // with 8 blended steps it is a fraction of the jump without.
-    let (dir, run) = ingested("ballplay");
-    let common = common_for(&run, dir.path().join("x"));
     let base = TrainConfig {
         skills: vec!["run".into()],
         episode_length: 200,
         early_termination: false,
         ..TrainConfig::default()
     };
-    let s = setup(&common, &base).unwrap();
+    let (_dir, s) = ballplay_setup(&base);
     let seam_move = |k: usize, masked: u32| -> f32 {
         let cfg = TrainConfig {
             seam_blend_steps: k,
@@ -625,14 +628,12 @@ fn blended_seams_turn_the_jump_into_a_transition() {
 
 #[test]
 fn tracking_failures_end_episodes_above_the_fall_height() {
-    let (dir, run) = ingested("ballplay");
-    let common = common_for(&run, dir.path().join("x"));
     let cfg = TrainConfig {
         skills: vec!["run".into()],
         term_key_distance: 0.05,
         ..TrainConfig::default()
     };
-    let s = setup(&common, &cfg).unwrap();
+    let (_dir, s) = ballplay_setup(&cfg);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
     let n = 4;
     let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
@@ -685,15 +686,13 @@ fn residual_actions_replay_the_reference_and_the_reference_block_follows_it() {
     // Zero residual actions replay the next reference pose (continued past
     // the clip end) as PD targets: they track better than zero plain
     // actions (the T-pose), and every step has a reference to score.
-    let (dir, run) = ingested("ballplay");
-    let common = common_for(&run, dir.path().join("x"));
     let base = TrainConfig {
         skills: vec!["run".into()],
         early_termination: false,
         episode_length: 120,
         ..TrainConfig::default()
     };
-    let s = setup(&common, &base).unwrap();
+    let (_dir, s) = ballplay_setup(&base);
     let n = 4;
     let run_env = |cfg: &TrainConfig| -> (f64, usize, Vec<f32>, usize) {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
@@ -735,13 +734,11 @@ fn residual_actions_replay_the_reference_and_the_reference_block_follows_it() {
 
 #[test]
 fn the_warm_start_fits_the_next_reference_pose() {
-    let (dir, run) = ingested("ballplay");
-    let common = common_for(&run, dir.path().join("x"));
     let cfg = TrainConfig {
         skills: vec!["run".into()],
         ..TrainConfig::default()
     };
-    let s = setup(&common, &cfg).unwrap();
+    let (_dir, s) = ballplay_setup(&cfg);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
     let env = environment(&s, &cfg, None, 2, &mut rng).unwrap();
     let (obs, targets) = env.warm_start_data(&s.clips, 1, &mut rng).unwrap();
