@@ -620,7 +620,9 @@ fn blended_seams_turn_the_jump_into_a_transition() {
     assert!(jump > 0.1, "{jump}");
     assert!(blended < 0.5 * jump, "{blended} vs {jump}");
     // with masked steps at the seam the blend starts where they end (the
-    // move spans three frames of motion, about 0.1 m of it unavoidable)
+    // move spans three frames of motion, about 0.1 m of it unavoidable;
+    // measured 0.187 m jumping, 0.115 m blended: without a blend after the
+    // masked steps both would be the jump)
     let (jump, blended) = (seam_move(0, 2), seam_move(8, 2));
     eprintln!("after 2 masked steps: {jump:.3} m jumping, {blended:.3} m blended");
     assert!(blended < 0.75 * jump, "{blended} vs {jump}");

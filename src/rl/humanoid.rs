@@ -971,10 +971,11 @@ impl Ctx<'_> {
                     }
                     _ => false,
                 };
-                let e = match self
-                    .reference(ep, ep.t)
-                    .filter(|_| lead != 0.0 && consecutive)
-                {
+                // the current frame is looked up only when a lead uses it
+                let now = (lead != 0.0 && consecutive)
+                    .then(|| self.reference(ep, ep.t))
+                    .flatten();
+                let e = match now {
                     Some(now) => lead_target(&now.joint_rot, &r.joint_rot, lead),
                     None => r.joint_rot.clone(),
                 };
@@ -998,7 +999,7 @@ impl Ctx<'_> {
         write_reference_obs(s, ep.next_ref.as_ref(), self.sk, block);
         if no_object_class(ep.class) {
             // the ball is parked out of play: no offset to show
-            block[60..].fill(0.0);
+            block[reference_obs_dim(0)..].fill(0.0);
         }
     }
 
