@@ -35,9 +35,17 @@
 //! * `serde-pickle` cannot resolve torch's persistent ids (`BINPERSID`) nor
 //!   evaluate `REDUCE` of `torch._utils._rebuild_tensor_v2`, which is exactly
 //!   what a tensor pickle consists of.
-//! * candle's `.pt` reader is a heavy dependency (a whole tensor framework)
-//!   and finds nothing when the top level is a bare tensor rather than a
-//!   state dict.
+//! * candle's pickle stack (`candle_core::pickle::Stack`, candle-core 0.11,
+//!   already a dependency) does parse tensor pickles, but it is unsafe on
+//!   malformed or hostile files, and a clip file is user input. Tried on
+//!   candle-core 0.11.1 (the stress cases of this module's tests):
+//!   `_rebuild_tensor_v2` called with a 2-tuple panics in
+//!   `Object::into_tensor_info` (an unchecked `Vec::remove`); memo
+//!   references copy the memoised object (`memo_get` clones), so a 286-byte
+//!   pickle that re-memoises `(m, m)` 40 times asks for 2^40 objects and
+//!   aborts on allocation failure; 200,000 nested `TUPLE1` (a 200 kB pickle)
+//!   overflow the stack when the nested objects are dropped. Each of these
+//!   aborts the whole stage instead of naming the bad file.
 //!
 //! The machine below implements only the opcodes `torch.save` emits at
 //! protocol 2 (plus a few neighbours that cost nothing), never imports or
@@ -1631,6 +1639,26 @@ mod tests {
             Err(PtError::NotATensor(w)) => assert_eq!(w, "a tuple with 1 item"),
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn memo_doubling_stays_linear() {
+        // memo[0] = (); 40 times memo[0] = (memo[0], memo[0]): 285 bytes
+        // that describe 2^40 leaves when references are copied.
+        let mut p = vec![0x80, 2, b')', b'q', 0];
+        for _ in 0..40 {
+            p.extend([b'h', 0, b'h', 0, 0x86, b'q', 0]);
+        }
+        p.push(b'.');
+        assert_eq!(p.len(), 286);
+        match unpickle_tensor(&p) {
+            Err(PtError::NotATensor(w)) => assert_eq!(w, "a tuple with 2 items"),
+            other => panic!("{other:?}"),
+        }
+        // a 2-tuple passed to _rebuild_tensor_v2 is an error, not a panic
+        let mut p = vec![0x80, 2];
+        p.extend(b"ctorch._utils\n_rebuild_tensor_v2\n(K\x01K\x02tR.");
+        assert!(matches!(unpickle_tensor(&p), Err(PtError::Pickle { .. })));
     }
 
     proptest! {
