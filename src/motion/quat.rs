@@ -1,12 +1,19 @@
-//! Quaternion and exponential-map maths used by the data stages.
+//! Quaternion and exponential-map maths used by the data stages, and the one
+//! exp-map of skillaug (the simulator's `sim::rot` calls the same generic
+//! functions in `f32`).
 //!
 //! Quaternions are stored **(x, y, z, w)** everywhere in skillaug, the order of
 //! the reference data and code (Ingrid789/SkillMimic-V2
 //! `skillmimic/utils/torch_utils.py`). An exp-map (rotation vector) is axis x
-//! angle in radians. The small-angle rules follow `exp_map_to_quat` and
-//! `quat_to_exp_map` of that file: below 1e-5 rad an exp-map maps to the
-//! identity, and a quaternion whose vector part has a sine below 1e-5 maps
-//! to the zero exp-map.
+//! angle in radians. Below 1e-5 rad an exp-map maps to the identity, as
+//! `exp_map_to_quat` of that file does. The inverse takes the angle as
+//! `2 atan2(|v|, w)` of the quaternion with `w >= 0` (angle in [0, pi]) and
+//! maps a vector part below 1e-5 to `2 v` (its small-angle limit), where the
+//! reference's `quat_to_exp_map` uses `2 acos(w)` and returns zero: `acos`
+//! near 1 loses half the digits: in `f32` a 2.3 % error at 1e-3 rad and
+//! zero for every angle below 2.4e-4 rad (docs/method.md, departures).
+
+use num_traits::Float;
 
 /// A quaternion in (x, y, z, w) order.
 pub type Quat = [f64; 4];
@@ -16,34 +23,50 @@ pub type Vec3 = [f64; 3];
 /// The identity rotation.
 pub const IDENTITY: Quat = [0.0, 0.0, 0.0, 1.0];
 
-const SMALL: f64 = 1e-5;
-
-/// Unit quaternion of the rotation vector `e` (`exp_map_to_quat` in
-/// Ingrid789/SkillMimic-V2 `skillmimic/utils/torch_utils.py`).
-pub fn from_expmap(e: Vec3) -> Quat {
-    let angle = norm(e);
-    if angle <= SMALL {
-        return IDENTITY;
+/// Unit quaternion of the rotation vector `e` (identity at or below
+/// 1e-5 rad), in `f32` or `f64`: `exp_map_to_quat` in
+/// Ingrid789/SkillMimic-V2 `skillmimic/utils/torch_utils.py`.
+pub fn expmap_to_quat<T: Float>(e: [T; 3]) -> [T; 4] {
+    let angle = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt();
+    if angle <= small() {
+        return [T::zero(), T::zero(), T::zero(), T::one()];
     }
-    let s = (0.5 * angle).sin() / angle;
-    [e[0] * s, e[1] * s, e[2] * s, (0.5 * angle).cos()]
+    let half = half::<T>() * angle;
+    let s = half.sin() / angle;
+    [e[0] * s, e[1] * s, e[2] * s, half.cos()]
 }
 
-/// Rotation vector of the unit quaternion `q`, with the angle wrapped to
-/// [-pi, pi] (`quat_to_exp_map` in Ingrid789/SkillMimic-V2
-/// `skillmimic/utils/torch_utils.py`), so `q` and `-q` give the same exp-map.
+/// Rotation vector of the unit quaternion `q`, angle in [0, pi] (`q` and
+/// `-q` give the same result), in `f32` or `f64`; a vector part at or below
+/// 1e-5 maps to `2 v`.
+pub fn quat_to_expmap<T: Float>(q: [T; 4]) -> [T; 3] {
+    let [x, y, z, w] = if q[3] < T::zero() { q.map(|c| -c) } else { q };
+    let s = (x * x + y * y + z * z).sqrt();
+    let two = T::one() + T::one();
+    if s <= small() {
+        return [two * x, two * y, two * z];
+    }
+    let k = two * s.atan2(w) / s;
+    [x * k, y * k, z * k]
+}
+
+fn small<T: Float>() -> T {
+    T::from(1e-5).expect("1e-5 is a float")
+}
+
+fn half<T: Float>() -> T {
+    T::from(0.5).expect("0.5 is a float")
+}
+
+/// Unit quaternion of the rotation vector `e` ([`expmap_to_quat`] in f64).
+pub fn from_expmap(e: Vec3) -> Quat {
+    expmap_to_quat(e)
+}
+
+/// Rotation vector of the unit quaternion `q` ([`quat_to_expmap`] in f64),
+/// so `q` and `-q` give the same exp-map.
 pub fn to_expmap(q: Quat) -> Vec3 {
-    let w = q[3].clamp(-1.0, 1.0);
-    let mut angle = 2.0 * w.acos();
-    if angle > std::f64::consts::PI {
-        angle -= 2.0 * std::f64::consts::PI;
-    }
-    let sin_half = (1.0 - w * w).max(0.0).sqrt();
-    if sin_half <= SMALL {
-        return [0.0; 3];
-    }
-    let k = angle / sin_half;
-    [q[0] * k, q[1] * k, q[2] * k]
+    quat_to_expmap(q)
 }
 
 /// The rotation vector of `e`'s rotation nearest to `like`: the same axis
@@ -119,6 +142,30 @@ mod tests {
     fn quarter_turn_about_z_rotates_x_to_y() {
         let q = from_expmap([0.0, 0.0, std::f64::consts::FRAC_PI_2]);
         assert!(close(&rotate(q, [1.0, 0.0, 0.0]), &[0.0, 1.0, 0.0], 1e-12));
+    }
+
+    #[test]
+    fn one_exp_map_serves_both_precisions() {
+        for e in [
+            [0.3, -0.2, 1.0],
+            [0.0, 3.0, 0.1],
+            [2e-4, -1e-4, 0.0],
+            [-2.0, 1.5, 0.5],
+        ] {
+            let back64 = to_expmap(from_expmap(e));
+            let back32 = quat_to_expmap(expmap_to_quat(e.map(|v| v as f32)));
+            let tol = 1e-12 * (1.0 + norm(e));
+            assert!(close(&back64, &e, tol), "{e:?} -> {back64:?}");
+            assert!(
+                close(&back32.map(f64::from), &e, 2e-6 * (1.0 + norm(e))),
+                "{back32:?}"
+            );
+        }
+        // below a 1e-5 sine the vector part maps to 2v (its limit), not zero
+        assert_eq!(to_expmap([4e-6, 0.0, 0.0, 1.0]), [8e-6, 0.0, 0.0]);
+        // in f32 a 1e-4 rad turn survives (2 acos(w) of its f32 w is 0)
+        let e = quat_to_expmap(expmap_to_quat([1e-4f32, 0.0, 0.0]));
+        assert!((e[0] - 1e-4).abs() < 1e-9, "{e:?}");
     }
 
     #[test]

@@ -10,33 +10,21 @@
 //! angular velocity `w` expressed in the parent frame by the left Jacobian of
 //! SO(3): `w = J_l(e) de/dt`, `de/dt = J_l(e)^-1 w`.
 
+use crate::motion::quat;
 use rapier3d::math::{Rotation, Vector};
 
-const SMALL: f32 = 1e-5;
-
-/// Unit quaternion of a rotation vector (identity below 1e-5 rad, as the
-/// data stages do).
+/// Unit quaternion of a rotation vector (identity at or below 1e-5 rad):
+/// [`crate::motion::quat::expmap_to_quat`] in f32.
 pub fn from_expmap(e: Vector) -> Rotation {
-    let angle = e.length();
-    if angle <= SMALL {
-        return Rotation::IDENTITY;
-    }
-    let s = (0.5 * angle).sin() / angle;
-    Rotation::from_xyzw(e.x * s, e.y * s, e.z * s, (0.5 * angle).cos())
+    let [x, y, z, w] = quat::expmap_to_quat([e.x, e.y, e.z]);
+    Rotation::from_xyzw(x, y, z, w)
 }
 
 /// Rotation vector of a unit quaternion, angle in [0, pi] (`q` and `-q`
-/// give the same result).
+/// give the same result): [`crate::motion::quat::quat_to_expmap`] in f32.
 pub fn to_expmap(q: Rotation) -> Vector {
-    let q = if q.w < 0.0 { -q } else { q };
-    let v = Vector::new(q.x, q.y, q.z);
-    let s = v.length();
-    if s <= SMALL {
-        // small angle: e ~ 2 v
-        return 2.0 * v;
-    }
-    let angle = 2.0 * s.atan2(q.w);
-    v * (angle / s)
+    let [x, y, z] = quat::quat_to_expmap([q.x, q.y, q.z, q.w]);
+    Vector::new(x, y, z)
 }
 
 fn skew_mul(e: Vector, v: Vector) -> Vector {
