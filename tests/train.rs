@@ -63,6 +63,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "--set",
             "train.seam_blend_steps=5",
             "--set",
+            "train.term_grace_steps=10",
+            "--set",
             "train.episode_length=200",
             "--set",
             "train.early_termination=false",
@@ -681,6 +683,73 @@ fn tracking_failures_end_episodes_above_the_fall_height() {
         }
     }
     assert!(high > 0, "no fall between 0.3 and 0.8 m");
+}
+
+#[test]
+fn a_grace_after_seams_keeps_the_key_point_rule_off_while_the_character_converges() {
+    // Zero residual actions replay the reference; at a seam the reference
+    // jumps to a dissimilar pose (0.3-0.4 m in mean key-point distance on
+    // the DF clips), so a tight key-point rule ends episodes right after
+    // their seams. With a grace of G steps no episode ends above the fall
+    // height in the G steps after a seam.
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        residual_action: true,
+        episode_length: 200,
+        term_key_distance: 0.3,
+        term_object_distance: 0.0,
+        ..TrainConfig::default()
+    };
+    let (_dir, s) = ballplay_setup(&base);
+    let n = 8;
+    let grace = 12;
+    // (failures above the fall height within `grace` steps after a seam,
+    // seams seen)
+    let ends_after_seams = |cfg: &TrainConfig| -> (usize, usize) {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
+        env.set_recording(true);
+        let od = env.obs_dim();
+        let zeros = vec![0f32; n * env.act_dim()];
+        let mut last: Vec<Option<(u32, u32)>> = vec![None; n];
+        let mut since: Vec<Option<usize>> = vec![None; n];
+        let (mut near, mut seams) = (0, 0);
+        for _ in 0..300 {
+            let r = env.step(&zeros, &mut rng).unwrap();
+            let recs = env.take_recorded();
+            for e in 0..n {
+                let at = recs[e].as_ref().and_then(|x| x.reference);
+                if let (Some(at), Some(prev)) = (at, last[e]) {
+                    if at.0 != prev.0 || at.1 != prev.1 + 1 {
+                        since[e] = Some(0);
+                        seams += 1;
+                    }
+                }
+                if r.terminated[e] || r.truncated[e] {
+                    let failed = r.terminated[e] && r.final_obs[e * od] >= 0.3;
+                    near += (failed && since[e].is_some_and(|k| k < grace)) as usize;
+                    (last[e], since[e]) = (None, None);
+                } else {
+                    last[e] = at;
+                    since[e] = since[e].map(|k| k + 1);
+                }
+            }
+        }
+        (near, seams)
+    };
+    let (without, seams) = ends_after_seams(&base);
+    let graced = TrainConfig {
+        term_grace_steps: grace,
+        ..base.clone()
+    };
+    let (with, seams_graced) = ends_after_seams(&graced);
+    eprintln!(
+        "failures within {grace} steps of a seam: {without} of {seams} seams without a grace, \
+         {with} of {seams_graced} with"
+    );
+    assert!(without > 0 && seams > 0, "{without} of {seams}");
+    assert_eq!(with, 0);
+    assert!(seams_graced > 0);
 }
 
 #[test]

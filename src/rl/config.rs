@@ -176,6 +176,13 @@ pub struct TrainConfig {
     /// Not written when 0.
     #[serde(skip_serializing_if = "is_zero_usize")]
     pub seam_blend_steps: usize,
+    /// Steps after a seam in which the key-point rule (`term_key_distance`)
+    /// does not end an episode, so training sees the character converge
+    /// onto the new frames instead of ending at the jump
+    /// ([`crate::rl::humanoid::EnvConfig::term_grace_steps`]; 0 = the rule
+    /// applies at every step). Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_usize")]
+    pub term_grace_steps: usize,
 }
 
 fn is_zero_usize(x: &usize) -> bool {
@@ -275,6 +282,7 @@ impl Default for TrainConfig {
             reference_obs: false,
             feed_forward_lead: 0.0,
             seam_blend_steps: 0,
+            term_grace_steps: 0,
         }
     }
 }
@@ -337,6 +345,7 @@ impl crate::config::Validate for TrainConfig {
         c.range("p_n", self.p_n, 0.0, 1.0)?;
         c.range("feed_forward_lead", self.feed_forward_lead as f64, 0.0, 5.0)?;
         c.count("seam_blend_steps", self.seam_blend_steps as u64, 0, 1000)?;
+        c.count("term_grace_steps", self.term_grace_steps as u64, 0, 100_000)?;
         c.count("num_envs", self.envs() as u64, 1, 1 << 20)?;
         c.count("horizon", self.steps() as u64, 1, 1 << 20)?;
         c.count("samples", self.samples, 1, u64::MAX)?;

@@ -191,6 +191,11 @@ pub struct EnvConfig {
     /// ([`crate::augment::seam::blend`], weights 1/(K+1) .. K/(K+1) on the
     /// new frames); 0 = the reference jumps to the seam frame.
     pub seam_blend_steps: usize,
+    /// Policy steps after a seam (the first continued step or the first
+    /// masked step of a seam) in which the key-point rule of
+    /// [`tracking_lost`] does not end an episode; falls and the object rule
+    /// still do. 0 = the rule applies at every step.
+    pub term_grace_steps: usize,
 }
 
 impl EnvConfig {
@@ -219,6 +224,7 @@ impl EnvConfig {
             reference_obs: false,
             feed_forward_lead: 0.0,
             seam_blend_steps: 0,
+            term_grace_steps: 0,
         }
     }
 }
@@ -509,6 +515,8 @@ struct Episode {
     /// With `seam_blend_steps`: the reference frame the old clip ended on,
     /// kept through a seam's masked steps for the blend after them.
     pending_from: Option<std::sync::Arc<State>>,
+    /// Policy step of the last seam (`None` before the first).
+    seam_t: Option<usize>,
     class: u32,
     /// Training-reward weights of this episode (object terms off for classes 0/10).
     weights: Weights,
@@ -834,6 +842,7 @@ impl Ctx<'_> {
             blend: Vec::new(),
             pending: None,
             pending_from: None,
+            seam_t: None,
             class,
             weights,
             sm_weights,
@@ -1030,7 +1039,15 @@ impl Ctx<'_> {
         } else {
             c.term_object_distance
         };
-        tracking_lost(s, reference, self.sk, c.term_key_distance, obj)
+        let graced = ep
+            .seam_t
+            .is_some_and(|t| ep.t.saturating_sub(t) <= c.term_grace_steps);
+        let key = if c.term_grace_steps > 0 && graced {
+            0.0
+        } else {
+            c.term_key_distance
+        };
+        tracking_lost(s, reference, self.sk, key, obj)
     }
 
     /// Continue `ep`'s reference past its clip's end (see
@@ -1120,6 +1137,7 @@ impl Ctx<'_> {
                 Some(anchor),
             )
         });
+        ep.seam_t = Some(ep.t);
         let start = ep.cont.len();
         ep.cont.extend(steps);
         ep.blend.resize(ep.cont.len(), None);

@@ -218,6 +218,7 @@ pub fn environment<'a>(
         reference_obs: cfg.reference_obs,
         feed_forward_lead: cfg.feed_forward_lead,
         seam_blend_steps: cfg.seam_blend_steps,
+        term_grace_steps: cfg.term_grace_steps,
         nsi_follow: cfg.nsi && !cfg.stf,
         ats: cfg.ats,
         ats_params: s.ats_params,
@@ -898,6 +899,18 @@ impl<'a> Trainer<'a> {
                 cfg.feed_forward_lead,
                 if idle {
                     " (no effect: no residual actions, no warm start)"
+                } else {
+                    ""
+                }
+            ));
+        }
+        if cfg.term_grace_steps > 0 {
+            let idle = !cfg.continuation || !cfg.early_termination || cfg.term_key_distance <= 0.0;
+            on.push(format!(
+                "term_grace_steps={}{}",
+                cfg.term_grace_steps,
+                if idle {
+                    " (no effect: needs continuation and the key-point rule)"
                 } else {
                     ""
                 }
