@@ -1,6 +1,11 @@
 //! Command-line definitions (clap). One subcommand per stage, plus helpers.
 
+use crate::nn::DeviceName;
+use crate::rl::humanoid::Method;
+use clap::builder::{PossibleValue, TypedValueParser};
+use clap::error::ErrorKind;
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use std::ffi::OsStr;
 use std::path::PathBuf;
 
 /// skillaug: robust interaction skills from sparse, noisy demonstrations.
@@ -123,7 +128,50 @@ pub struct InspectArgs {
 #[derive(Debug, Args)]
 pub struct SchemaArgs {
     /// Table name (clips, frames).
+    #[arg(value_parser = TableName, hide_possible_values = true)]
     pub name: String,
+}
+
+/// The value parser of `schema NAME`: one of [`crate::table::TABLES`]
+/// (offered to shell completion; not listed in the help, and an unknown
+/// name is answered with the list).
+#[derive(Clone, Copy, Debug)]
+struct TableName;
+
+impl TypedValueParser for TableName {
+    type Value = String;
+
+    fn parse_ref(
+        &self,
+        cmd: &clap::Command,
+        _arg: Option<&clap::Arg>,
+        value: &OsStr,
+    ) -> Result<String, clap::Error> {
+        let name = value.to_string_lossy();
+        match crate::table::TABLES.iter().find(|t| **t == name) {
+            Some(t) => Ok(t.to_string()),
+            None => Err(clap::Error::raw(
+                ErrorKind::InvalidValue,
+                format!(
+                    "unknown table `{name}` (known: {})\n",
+                    crate::table::TABLES.join(", ")
+                ),
+            )
+            .with_cmd(cmd)),
+        }
+    }
+
+    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
+        Some(Box::new(
+            crate::table::TABLES.iter().map(PossibleValue::new),
+        ))
+    }
+}
+
+/// The value parser of `--device`: a [`DeviceName`] (whether this build
+/// has CUDA is checked when the device is opened).
+fn device_name(s: &str) -> Result<DeviceName, String> {
+    s.parse().map_err(|e: anyhow::Error| e.to_string())
 }
 
 /// The benchmarks of `skillaug bench`.
@@ -135,15 +183,6 @@ pub enum Bench {
     Sim,
     /// Whole PPO iterations: samples/s and the simulation-only bound.
     Train,
-}
-
-/// The training reward of `--method`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum MethodArg {
-    /// SkillMimic's multiplicative reward.
-    Sm,
-    /// DeepMimic's additive reward.
-    Dm,
 }
 
 /// The length unit of `--units`.
@@ -357,7 +396,7 @@ pub struct TrainArgs {
     pub common: StageArgs,
     /// Training reward: sm (SkillMimic) or dm (DeepMimic); overrides train.method.
     #[arg(long, value_enum)]
-    pub method: Option<MethodArg>,
+    pub method: Option<Method>,
     /// epsilon-NSI: neighbourhood starts without the connection rule.
     #[arg(long)]
     pub nsi: bool,
@@ -374,8 +413,8 @@ pub struct TrainArgs {
     #[arg(long)]
     pub he: bool,
     /// Compute device for the networks: cpu (default), or cuda / cuda:N with the `cuda` feature.
-    #[arg(long)]
-    pub device: Option<String>,
+    #[arg(long, value_parser = device_name)]
+    pub device: Option<DeviceName>,
     /// Continue from the checkpoint in --out.
     #[arg(long)]
     pub resume: bool,
@@ -388,6 +427,45 @@ pub struct PretrainHeArgs {
     #[allow(missing_docs)]
     pub common: StageArgs,
     /// Compute device: cpu (default), or cuda / cuda:N with the `cuda` feature.
-    #[arg(long)]
-    pub device: Option<String>,
+    #[arg(long, value_parser = device_name)]
+    pub device: Option<DeviceName>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(args: &[&str]) -> Result<Cli, clap::Error> {
+        Cli::try_parse_from(std::iter::once("skillaug").chain(args.iter().copied()))
+    }
+
+    #[test]
+    fn schema_takes_the_known_tables_and_lists_them_for_others() {
+        for t in crate::table::TABLES {
+            let Command::Schema(a) = parse(&["schema", t]).unwrap().command else {
+                panic!("not schema");
+            };
+            assert_eq!(a.name, *t);
+        }
+        let e = parse(&["schema", "nope"]).unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::InvalidValue);
+        assert!(e
+            .to_string()
+            .contains("unknown table `nope` (known: clips, frames,"));
+    }
+
+    #[test]
+    fn train_takes_a_method_and_a_device() {
+        let Command::Train(a) = parse(&["train", "--method", "dm", "--device", "cuda:2"])
+            .unwrap()
+            .command
+        else {
+            panic!("not train");
+        };
+        assert_eq!(a.method, Some(Method::Dm));
+        assert_eq!(a.device, Some(DeviceName::Cuda(Some(2))));
+        let e = parse(&["train", "--device", "tpu"]).unwrap_err();
+        assert!(e.to_string().contains("unknown device `tpu`"), "{e}");
+        assert!(parse(&["train", "--method", "xm"]).is_err());
+    }
 }

@@ -25,6 +25,7 @@ pub mod reward;
 pub mod rl;
 pub mod sim;
 pub mod stage;
+pub mod stats;
 pub mod table;
 pub mod view;
 
@@ -47,21 +48,18 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::BuildStg(a) => stage::build_stg::run(&stage::Common::new(a.common)?, a.per_target),
         Command::SampleStf(a) => stage::sample_stf::run(&stage::Common::new(a.common)?),
         Command::PretrainHe(a) => {
-            stage::pretrain_he::run(&stage::Common::new(a.common)?, a.device.as_deref())
+            let device = a.device.map(|d| d.to_string());
+            stage::pretrain_he::run(&stage::Common::new(a.common)?, device.as_deref())
         }
         Command::Train(a) => {
-            let method = a.method.map(|m| match m {
-                cli::MethodArg::Sm => rl::humanoid::Method::Sm,
-                cli::MethodArg::Dm => rl::humanoid::Method::Dm,
-            });
-            let sw = stage::train::Switches {
-                method,
+            let sw = rl::config::Switches {
+                method: a.method,
                 nsi: a.nsi,
                 stg: a.stg,
                 stf: a.stf,
                 ats: a.ats,
                 he: a.he,
-                device: a.device,
+                device: a.device.map(|d| d.to_string()),
                 resume: a.resume,
             };
             stage::train::run(&stage::Common::new(a.common)?, &sw)

@@ -9,7 +9,7 @@
 //! hash is unchanged and that finished; a step that started but did not
 //! finish runs again (training resumes from its checkpoint).
 
-use crate::config::hash_text;
+use crate::config::{hash_text, Recipe, SetArg};
 use crate::rl::config::Switches;
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
@@ -244,6 +244,44 @@ pub fn plan(cfg: &RunConfig, table_text: impl Fn(&str) -> String, first: String)
         }
     }
     steps
+}
+
+/// The text of `stage`'s recipe table that its step's hash covers: the
+/// table as TOML, then the `--set` overrides of `sets` for that stage.
+pub fn table_text(recipe: &Recipe, sets: &[SetArg], stage: &str) -> String {
+    let t = recipe
+        .table
+        .get(stage)
+        .map(|v| toml::to_string(v).unwrap_or_default())
+        .unwrap_or_default();
+    let sets: Vec<&str> = sets
+        .iter()
+        .filter(|s| s.path[0] == stage)
+        .map(|s| s.raw.as_str())
+        .collect();
+    format!("[{stage}]\n{t}\nset={sets:?}")
+}
+
+/// The steps of `cfg` ([`plan`]) with the hashes of the recipe `recipe`
+/// with overrides `sets`, seed `seed` and data root `data_root`
+/// (`--data-root`): the chain starts from the hash of the dataset, the
+/// seed, the data root and the `[sample-stf]` table (which the trainer's
+/// starts read too).
+pub fn hashed_plan(
+    cfg: &RunConfig,
+    recipe: &Recipe,
+    sets: &[SetArg],
+    seed: u64,
+    data_root: Option<&Path>,
+) -> Vec<Step> {
+    let first = hash_text(&format!(
+        "dataset={} seed={} data_root={:?} stf={}",
+        cfg.dataset,
+        seed,
+        data_root,
+        table_text(recipe, sets, "sample-stf")
+    ));
+    plan(cfg, |stage| table_text(recipe, sets, stage), first)
 }
 
 #[cfg(test)]

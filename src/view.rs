@@ -154,13 +154,7 @@ fn z_to(d: [f64; 3]) -> [f32; 4] {
     if w < 1e-9 {
         return [1.0, 0.0, 0.0, 0.0]; // d = -z: half turn about x
     }
-    let n = (x * x + y * y + z * z + w * w).sqrt();
-    [
-        (x / n) as f32,
-        (y / n) as f32,
-        (z / n) as f32,
-        (w / n) as f32,
-    ]
+    crate::motion::quat::normalize([x, y, z, w]).map(|v| v as f32)
 }
 
 fn geom_view(g: &crate::sim::mjcf::Geom, body: &str) -> Result<GeomView> {

@@ -307,8 +307,8 @@ fn unknown_recipe_and_set_keys_are_errors() {
     assert!(!out.exists());
 }
 
-// ---- issue 17: empty clips, nonsense settings, class ids, two writers,
-// ---- file modes
+// ---- bad input refused with a message, nothing written: empty clips,
+// ---- nonsense settings, class ids, two writers, file modes
 
 const LRUN: &str = "ballplay/lrun/011_018pickle_lrun_2.pt";
 

@@ -126,7 +126,7 @@ fn shipped_recipes_resolve() {
             let r = skillaug::config::Recipe::load(&p).unwrap();
             skillaug::config::resolve::<skillaug::ingest::IngestConfig>(&r, "ingest", &[])
                 .unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
-            skillaug::config::resolve::<skillaug::stage::build_stg::StgConfig>(
+            skillaug::config::resolve::<skillaug::augment::settings::StgConfig>(
                 &r,
                 "build-stg",
                 &[],

@@ -1,5 +1,5 @@
 //! `skillaug eval` on tiny policies trained on the real clips: outputs,
-//! cell counts and refusals (issue: eval and report).
+//! cell counts and refusals (`eval` and `report` in README.md).
 
 mod common;
 
@@ -224,6 +224,7 @@ fn a_policy_that_needs_its_reference_gets_it_continued_in_every_trial_cell() {
     // trials continue the reference to their length; NR and every cell of a
     // plain policy stop at the clip's end, as before
     use skillaug::eval::evaluator::{load_policy, plan_cells, EvalConfig};
+    use skillaug::table::eval::Metric;
     let (dir, run) = ingested("ballplay");
     let from = run.to_str().unwrap();
     let lib = skillaug::table::load_library(&run).unwrap();
@@ -241,15 +242,15 @@ fn a_policy_that_needs_its_reference_gets_it_continued_in_every_trial_cell() {
         let (meta, _, _) = load_policy(&pol, &lib, &run).unwrap();
         let (cells, _) = plan_cells(&cfg, &meta, &lib);
         assert!(
-            cells.iter().any(|c| c.metric == "tsr"),
+            cells.iter().any(|c| c.metric == Metric::Tsr),
             "{name}: no TSR cell"
         );
         for c in &cells {
             let want = match (name, c.metric) {
-                ("plain", _) | (_, "nr") => 0,
+                ("plain", _) | (_, Metric::Nr) => 0,
                 _ => c.env.fixed_length.unwrap(),
             };
-            assert_eq!(c.env.continue_steps, want, "{name} {} {}", c.metric, c.to);
+            assert_eq!(c.env.continue_steps, want, "{name} {:?} {}", c.metric, c.to);
         }
     }
 }

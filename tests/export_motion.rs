@@ -1,4 +1,4 @@
-//! `skillaug export --bvh/--gltf` on the real clips (issue 20), the files
+//! `skillaug export --bvh/--gltf` on the real clips (docs/export.md), the files
 //! read back by independent readers: the `bvh` and `pygltflib` Python
 //! packages (forward kinematics in numpy, against an exp-map FK of the MJCF
 //! written here in Python from the stored root and joint values), a

@@ -1,4 +1,4 @@
-//! `skillaug export --policy TRAIN_DIR --onnx FILE` (issue 20, item 2): tiny
+//! `skillaug export --policy TRAIN_DIR --onnx FILE` (docs/export.md): tiny
 //! policies trained on the real clips are exported, and ONNX Runtime, run in
 //! Python on real observations of skillaug's own environment, gives the
 //! actions skillaug's agent chooses deterministically (max |diff| <= 1e-5).
@@ -13,7 +13,6 @@ use skillaug::rl::config::PolicyMeta;
 use skillaug::rl::humanoid::HeRuntime;
 use skillaug::rl::trainer::environment;
 use skillaug::rl::{Agent, VecEnv};
-use skillaug::stage::train::setup;
 use std::path::Path;
 
 /// The agreement asked of ONNX Runtime and skillaug's agent.
@@ -59,11 +58,10 @@ fn export(pol: &Path, out: &Path) -> String {
 fn record(run: &Path, pol: &Path, envs: usize, steps: usize) -> (Vec<f32>, Vec<f32>, usize, usize) {
     let meta: PolicyMeta =
         serde_json::from_slice(&std::fs::read(pol.join("policy.meta.json")).unwrap()).unwrap();
-    let common = common_for(run, pol.join("unused"));
     let mut cfg = meta.train.clone();
     cfg.skills = meta.skills.clone();
     cfg.stg = false;
-    let s = setup(&common, &cfg).unwrap();
+    let s = setup_for(run, &cfg);
     let dev = candle_core::Device::Cpu;
     let he = meta.he_dir.as_ref().map(|d| {
         let enc = skillaug::nn::he::load(Path::new(d), &dev).unwrap();

@@ -1,6 +1,7 @@
 //! The rapier3d world against the real clips and against physics: state
 //! round trips, PD tracking, ball restitution, stability under random
-//! actions (issue: the simulated humanoid).
+//! actions: what the simulated humanoid must do before anything trains on
+//! it.
 
 mod common;
 

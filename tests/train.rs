@@ -1,5 +1,5 @@
-//! `skillaug train` and its environment on the real clips (issue: PPO on the
-//! rapier humanoid). Budgets are tiny: these check behaviour, not learning
+//! `skillaug train` and its environment on the real clips: PPO on the
+//! rapier humanoid. Budgets are tiny: these check behaviour, not learning
 //! (the learning figures are in docs/training.md and `stages/`).
 
 mod common;
@@ -10,7 +10,6 @@ use skillaug::rl::config::TrainConfig;
 use skillaug::rl::humanoid::{obs_dim, write_observation};
 use skillaug::rl::trainer::environment;
 use skillaug::rl::VecEnv;
-use skillaug::stage::train::setup;
 
 /// With [`TINY_TRAIN`]: two mini-epochs, a checkpoint every iteration, two threads.
 const TINY: &[&str] = &[
@@ -27,8 +26,7 @@ const TINY: &[&str] = &[
 /// returned guard) and the environment set-up of `cfg` over them.
 fn ballplay_setup(cfg: &TrainConfig) -> (tempfile::TempDir, skillaug::rl::trainer::Setup) {
     let (dir, run) = ingested("ballplay");
-    let common = common_for(&run, dir.path().join("x"));
-    let s = setup(&common, cfg).unwrap();
+    let s = setup_for(&run, cfg);
     (dir, s)
 }
 
@@ -368,9 +366,8 @@ fn episodes_end_by_falls_below_the_threshold_and_by_their_length() {
 
 #[test]
 fn the_observation_does_not_change_when_the_scene_turns_about_the_vertical() {
-    let (dir, run) = ingested("ballplay");
-    let common = common_for(&run, dir.path().join("x"));
-    let s = setup(&common, &TrainConfig::default()).unwrap();
+    let (_dir, run) = ingested("ballplay");
+    let s = setup_for(&run, &TrainConfig::default());
     let lib = &s.lib;
     let sk = lib.skeleton;
     let mut w = skillaug::sim::World::new(&s.model, &s.objects, &s.sim).unwrap();
@@ -400,9 +397,8 @@ fn open_loop_reference_targets_score_above_zero_actions() {
     // clips: replaying the next reference pose as PD targets must track
     // better than holding the T-pose targets.
     use skillaug::reward::{self, RewardOptions, Weights};
-    let (dir, run) = ingested("ballplay");
-    let common = common_for(&run, dir.path().join("x"));
-    let s = setup(&common, &TrainConfig::default()).unwrap();
+    let (_dir, run) = ingested("ballplay");
+    let s = setup_for(&run, &TrainConfig::default());
     let lib = &s.lib;
     let sk = lib.skeleton;
     let w8 = Weights::sm(reward::DatasetKind::of_library(lib));

@@ -1,6 +1,7 @@
 //! `skillaug view` and `eval --record` on the real clips, the page checked
 //! in a real headless browser (Debian's chromium; `.ci/run` installs it),
-//! and `skillaug plot` on every table kind (issue: see the motion).
+//! and `skillaug plot` on every table kind: every kind of motion the
+//! toolkit writes can be seen.
 
 mod common;
 
@@ -258,8 +259,9 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
     }
     let err = (err / nb as f64).sqrt();
     // One frame's rms error, measured 3.8 cm on frame 0 of clip 0 (its mean
-    // error 3.4 cm); 6 cm leaves room over that. The simulation issue's own
-    // bound, a mean of 5 cm per BallPlay clip, is checked by `check-fk`.
+    // error 3.4 cm); 6 cm leaves room over that. The bound on a whole
+    // clip, a mean of 5 cm per BallPlay clip, is checked with `check-fk`
+    // (tests/sim.rs).
     assert!(err < 0.06, "rms body position error of frame 0: {err} m");
     // the page stores body 0 first, as position then rotation: its position
     // is the stored root, bit for bit

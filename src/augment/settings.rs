@@ -1,6 +1,7 @@
-//! The settings of the `[sample-stf]` recipe table ([`StfConfig`]), which
-//! both `skillaug sample-stf` and the trainer's STF starts read (one recipe
-//! drives both), and their translation into the library's parameters. The
+//! The settings of the `[build-stg]` recipe table ([`StgConfig`]) and of
+//! the `[sample-stf]` table ([`StfConfig`]), which both `skillaug
+//! sample-stf` and the trainer's STF starts read (one recipe drives both),
+//! and their translation into the library's parameters. The
 //! trainer takes p_e, p_n and the trajectory length T from its own table
 //! instead (`train.p_e`, `train.p_n`, `train.episode_length`, with the
 //! switches; `crate::rl::trainer::start_params`): there `sample-stf.p_e`,
@@ -8,10 +9,65 @@
 
 use crate::augment::ats::{AtsParams, Update};
 use crate::augment::stf::{Connect, Eps, Noise, Order, Search, StfParams};
+use crate::augment::stg::StgParams;
 use crate::augment::MaskRule;
+use crate::reward::Align;
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
+
+/// Settings of the `[build-stg]` recipe table.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StgConfig {
+    /// Similarity threshold tau (Table 7).
+    pub tau: f64,
+    /// Maximum masked states N_max (Table 7).
+    pub n_max: u32,
+    /// Eq. 20 as printed ("paper", ceil) or the reference code's floor rule ("reference").
+    pub mask_rule: MaskRule,
+    /// Align the start state's heading too, not only its root x, y (reference code; paper: x, y only).
+    pub align_yaw: bool,
+    /// The reference code's direction: for each frame of A, the best state of each other skill.
+    pub per_target: bool,
+}
+
+impl crate::config::Validate for StgConfig {
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.range("tau", self.tau, 0.0, 1.0)?;
+        c.count("n_max", self.n_max as u64, 0, 10_000)
+    }
+}
+
+impl Default for StgConfig {
+    fn default() -> Self {
+        StgConfig {
+            tau: 1e-10,
+            n_max: 10,
+            mask_rule: MaskRule::Paper,
+            align_yaw: true,
+            per_target: false,
+        }
+    }
+}
+
+impl StgConfig {
+    /// The library's parameters ([`crate::augment::stg::build`]): root x, y
+    /// always aligned, the heading when `align_yaw`.
+    pub fn params(&self) -> StgParams {
+        StgParams {
+            tau: self.tau,
+            n_max: self.n_max,
+            mask_rule: self.mask_rule,
+            align: Align {
+                xy: true,
+                yaw: self.align_yaw,
+            },
+            per_target: self.per_target,
+        }
+    }
+}
 
 /// Settings of the `[sample-stf]` recipe table (defaults: Table 7, BallPlay).
 #[derive(Debug, Clone, Serialize, Deserialize)]

@@ -257,6 +257,50 @@ pub enum StartKind {
     Stg,
 }
 
+/// A start's kind and whether it was drawn from the ε-neighbourhood: the
+/// four start labels of the summaries and of `stf_samples.parquet`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StartLabel {
+    /// A plain reference frame of the target skill.
+    Rsi,
+    /// Drawn around a reference frame of the target skill.
+    RsiNoise,
+    /// A plain external state through an STG edge.
+    Stg,
+    /// Drawn around an external state through an STG edge.
+    StgNoise,
+}
+
+impl StartLabel {
+    /// Every label, in the order of the summary's columns.
+    pub const ALL: [StartLabel; 4] = [
+        StartLabel::Rsi,
+        StartLabel::RsiNoise,
+        StartLabel::Stg,
+        StartLabel::StgNoise,
+    ];
+
+    /// The label of a start of `kind`, `noised` or not.
+    pub fn of(kind: StartKind, noised: bool) -> StartLabel {
+        match (kind, noised) {
+            (StartKind::Rsi, false) => StartLabel::Rsi,
+            (StartKind::Rsi, true) => StartLabel::RsiNoise,
+            (StartKind::Stg, false) => StartLabel::Stg,
+            (StartKind::Stg, true) => StartLabel::StgNoise,
+        }
+    }
+
+    /// "rsi", "rsi+noise", "stg" or "stg+noise".
+    pub fn as_str(self) -> &'static str {
+        match self {
+            StartLabel::Rsi => "rsi",
+            StartLabel::RsiNoise => "rsi+noise",
+            StartLabel::Stg => "stg",
+            StartLabel::StgNoise => "stg+noise",
+        }
+    }
+}
+
 /// One step of a sampled trajectory.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Step {
@@ -304,14 +348,14 @@ pub struct Trajectory {
 }
 
 impl Trajectory {
-    /// "rsi", "stg", "rsi+noise" or "stg+noise".
+    /// The start's kind and noise.
+    pub fn start_label(&self) -> StartLabel {
+        StartLabel::of(self.start_kind, self.noised)
+    }
+
+    /// "rsi", "stg", "rsi+noise" or "stg+noise" ([`StartLabel::as_str`]).
     pub fn kind_label(&self) -> &'static str {
-        match (self.start_kind, self.noised) {
-            (StartKind::Rsi, false) => "rsi",
-            (StartKind::Stg, false) => "stg",
-            (StartKind::Rsi, true) => "rsi+noise",
-            (StartKind::Stg, true) => "stg+noise",
-        }
+        self.start_label().as_str()
     }
 
     /// Policy steps (rows after step 0).
@@ -337,11 +381,6 @@ fn draw3<R: Rng>(e: f64, noise: Noise, rng: &mut R) -> [f64; 3] {
     ]
 }
 
-fn normalize(q: quat::Quat) -> quat::Quat {
-    let n = quat::dot(q, q).sqrt();
-    q.map(|v| v / n)
-}
-
 /// A state drawn from the ε-neighbourhood of `s` (see the module doc for what
 /// each group does). Draw order: root rotation, root position, root linear
 /// and angular velocity, joint exp-maps, joint velocities, then per object
@@ -355,7 +394,7 @@ pub fn perturb<R: Rng>(s: &State, eps: &Eps, noise: Noise, rng: &mut R) -> State
     let qd = quat::from_expmap(dr);
     let turned = dr != [0.0; 3];
     if turned {
-        let q = normalize(quat::mul(qd, s.root_rot.map(|v| v as f64)));
+        let q = quat::normalize(quat::mul(qd, s.root_rot.map(|v| v as f64)));
         o.root_rot = q.map(|v| v as f32);
         o.root_rot_expmap =
             quat::nearest_expmap(quat::to_expmap(q), s.root_rot_expmap).map(|v| v as f32);
@@ -402,7 +441,7 @@ pub fn perturb<R: Rng>(s: &State, eps: &Eps, noise: Noise, rng: &mut R) -> State
         }
         if r != [0.0; 3] {
             let q0: quat::Quat = std::array::from_fn(|i| s.obj_rot[4 * k + i] as f64);
-            let q = normalize(quat::mul(quat::from_expmap(r), q0));
+            let q = quat::normalize(quat::mul(quat::from_expmap(r), q0));
             for (dst, v) in o.obj_rot[4 * k..4 * k + 4].iter_mut().zip(q) {
                 *dst = v as f32;
             }
@@ -744,34 +783,24 @@ impl<'a> StfSampler<'a> {
 /// The summary table: per target skill, trajectories per start kind, mean N
 /// and mean length (policy steps).
 pub fn summary(trajs: &[Trajectory], skills: &[String]) -> String {
-    const KINDS: [&str; 4] = ["rsi", "rsi+noise", "stg", "stg+noise"];
-    let mut s = format!(
-        "{:<14} {:>5} {:>6} {:>6} {:>9} {:>6} {:>9} {:>8} {:>6} {:>10}\n",
-        "target skill",
-        "class",
-        "trajs",
-        "rsi",
-        "rsi+noise",
-        "stg",
-        "stg+noise",
-        "fallback",
-        "mean N",
-        "mean steps"
-    );
+    // one column per start label, at least 6 wide
+    let width = |k: StartLabel| k.as_str().len().max(6);
+    let mut s = format!("{:<14} {:>5} {:>6}", "target skill", "class", "trajs");
+    for k in StartLabel::ALL {
+        s += &format!(" {:>w$}", k.as_str(), w = width(k));
+    }
+    s += &format!(" {:>8} {:>6} {:>10}\n", "fallback", "mean N", "mean steps");
     let row = |name: &str, class: String, v: &[&Trajectory]| -> String {
         let n = v.len().max(1) as f64;
-        let count = |k: &str| v.iter().filter(|t| t.kind_label() == k).count();
         let mean_n = v.iter().map(|t| t.n_masked as f64).sum::<f64>() / n;
         let mean_len = v.iter().map(|t| t.policy_steps() as f64).sum::<f64>() / n;
-        format!(
-            "{:<14} {:>5} {:>6} {:>6} {:>9} {:>6} {:>9} {:>8} {:>6.2} {:>10.1}\n",
-            name,
-            class,
-            v.len(),
-            count(KINDS[0]),
-            count(KINDS[1]),
-            count(KINDS[2]),
-            count(KINDS[3]),
+        let mut s = format!("{:<14} {:>5} {:>6}", name, class, v.len());
+        for k in StartLabel::ALL {
+            let count = v.iter().filter(|t| t.start_label() == k).count();
+            s += &format!(" {:>w$}", count, w = width(k));
+        }
+        s + &format!(
+            " {:>8} {:>6.2} {:>10.1}\n",
             v.iter().filter(|t| t.fallback).count(),
             mean_n,
             mean_len
@@ -1099,5 +1128,24 @@ mod tests {
         assert_eq!(p.eps_for(0).root_vel, 1.0);
         assert_eq!(p.eps_for(0).dof, 0.1);
         assert_eq!(*p.eps_for(13), Eps::all(0.1));
+    }
+
+    #[test]
+    fn start_labels_name_each_kind_and_noise() {
+        let want = [
+            (StartKind::Rsi, false, "rsi"),
+            (StartKind::Rsi, true, "rsi+noise"),
+            (StartKind::Stg, false, "stg"),
+            (StartKind::Stg, true, "stg+noise"),
+        ];
+        for (l, (kind, noised, name)) in StartLabel::ALL.into_iter().zip(want) {
+            assert_eq!((StartLabel::of(kind, noised), l.as_str()), (l, name));
+        }
+        assert_eq!(
+            summary(&[], &[]).lines().next(),
+            Some(
+                "target skill   class  trajs    rsi rsi+noise    stg stg+noise fallback mean N mean steps"
+            )
+        );
     }
 }

@@ -113,7 +113,7 @@ struct Canon {
 
 fn canon(s: &State, sk: Skeleton, align: Align) -> Canon {
     let yaw = if align.yaw {
-        reward::heading(s.root_rot)
+        quat::heading(s.root_rot)
     } else {
         0.0
     };
@@ -266,7 +266,7 @@ pub fn build(lib: &MotionLib, w: &Weights, p: &StgParams) -> (Vec<Edge>, Vec<Ski
                 canons[dst.0][dst.1].as_ref()?,
             );
             let yaw = if p.align.yaw {
-                wrap(t.yaw - s.yaw)
+                quat::wrap_angle(t.yaw - s.yaw)
             } else {
                 0.0
             };
@@ -350,18 +350,40 @@ pub fn build(lib: &MotionLib, w: &Weights, p: &StgParams) -> (Vec<Edge>, Vec<Ski
     (edges, summary)
 }
 
-fn wrap(a: f64) -> f64 {
-    let tau = 2.0 * std::f64::consts::PI;
-    (a + std::f64::consts::PI).rem_euclid(tau) - std::f64::consts::PI
-}
-
 #[cfg(test)]
-pub(crate) fn canonical_similarity(
-    t: &State,
-    s: &State,
-    sk: Skeleton,
-    w: &Weights,
-    align: Align,
-) -> f64 {
-    sim(&canon(t, sk, align), &canon(s, sk, align), w)
+mod tests {
+    use super::*;
+    use crate::reward::tests::state;
+    use crate::reward::{similarity, DatasetKind};
+
+    const SK: Skeleton = Skeleton::MocapHumanoid;
+
+    fn canonical_similarity(t: &State, s: &State, sk: Skeleton, w: &Weights, align: Align) -> f64 {
+        sim(&canon(t, sk, align), &canon(s, sk, align), w)
+    }
+
+    #[test]
+    fn the_stg_canonical_similarity_equals_the_aligned_one() {
+        let w = Weights::sm(DatasetKind::BallPlay);
+        for (i, j) in [(1u64, 2u64), (3, 9), (10, 11)] {
+            let (a, mut b) = (state(i), state(j));
+            b.root_rot = quat::from_expmap([0.1, 0.2, -2.5]).map(|v| v as f32);
+            b.root_rot_expmap = [0.1, 0.2, -2.5];
+            b.root_pos = [-3.0, 4.0, 0.8];
+            for align in [
+                Align::default(),
+                Align {
+                    xy: true,
+                    yaw: false,
+                },
+            ] {
+                let want = similarity(&a, &b, SK, &w, align);
+                let got = canonical_similarity(&a, &b, SK, &w, align);
+                assert!(
+                    (want - got).abs() <= 1e-6 * want.max(1e-12),
+                    "{want} vs {got}"
+                );
+            }
+        }
+    }
 }

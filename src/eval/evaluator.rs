@@ -24,7 +24,7 @@ use crate::rl::config::{PolicyMeta, TrainConfig};
 use crate::rl::humanoid::{EnvConfig, HeRuntime, MaskedReward};
 use crate::rl::trainer::{environment_with, start_params, Setup};
 use crate::rl::{Agent, VecEnv};
-use crate::table::eval as etable;
+use crate::table::eval::{self as etable, Metric};
 use crate::table::rollout::RolloutStep;
 use anyhow::{bail, ensure, Context, Result};
 use rand::SeedableRng;
@@ -64,7 +64,7 @@ impl crate::config::Validate for EvalConfig {
             "metrics = []: give at least one of sr, tsr, nsr, nr".into()
         })?;
         for m in &self.metrics {
-            c.holds(["sr", "tsr", "nsr", "nr"].contains(&m.as_str()), || {
+            c.holds(Metric::from_name(m).is_some(), || {
                 format!("metrics: unknown metric `{m}` (sr, tsr, nsr, nr)")
             })?;
         }
@@ -120,8 +120,8 @@ pub fn shot_target(lib: &MotionLib, skill: &str) -> f32 {
 /// One evaluation cell: its metric, start and target skills, rule (None:
 /// NR, the mean SM reward per unmasked step) and environment settings.
 pub struct Cell {
-    /// "sr", "tsr", "nsr" or "nr".
-    pub metric: &'static str,
+    /// Its metric.
+    pub metric: Metric,
     /// The skill whose clips the trials start in.
     pub from: String,
     /// The skill the policy is asked for and judged by.
@@ -161,6 +161,7 @@ impl Evaluator<'_> {
         seed: u64,
     ) -> Result<(Vec<etable::TrialRow>, Vec<RolloutStep>)> {
         let s = &self.setup;
+        let metric = cell.metric;
         let clips: Vec<usize> = s
             .clips
             .iter()
@@ -220,7 +221,7 @@ impl Evaluator<'_> {
                 }
                 if let Some(rec) = recs.get_mut(e).and_then(Option::take) {
                     running[e].push(RolloutStep {
-                        metric: cell.metric.to_string(),
+                        metric: cell.metric.as_str().to_string(),
                         from: cell.from.clone(),
                         to: cell.to.clone(),
                         trial: 0,
@@ -238,7 +239,7 @@ impl Evaluator<'_> {
                         recorded.extend(steps.into_iter().map(|s| RolloutStep { trial, ..s }));
                     }
                     rows.push(etable::TrialRow {
-                        metric: cell.metric.to_string(),
+                        metric,
                         from: cell.from.clone(),
                         to: cell.to.clone(),
                         trial,
@@ -380,8 +381,8 @@ pub fn plan_cells(
             r.trial_steps()
         }
     };
-    let want = |m: &str| cfg.metrics.iter().any(|x| x == m);
-    let cell = |metric, from: &str, to: &str, rule: Option<Rule>, env: EnvConfig| Cell {
+    let want = |m: Metric| cfg.metrics.iter().any(|x| x == m.as_str());
+    let cell = |metric: Metric, from: &str, to: &str, rule: Option<Rule>, env: EnvConfig| Cell {
         metric,
         from: from.to_string(),
         to: to.to_string(),
@@ -404,24 +405,24 @@ pub fn plan_cells(
                 },
                 ..trial
             };
-            if want("sr") {
-                cells.push(cell("sr", skill, skill, rule, trial.clone()));
+            if want(Metric::Sr) {
+                cells.push(cell(Metric::Sr, skill, skill, rule, trial.clone()));
             }
-            if want("nsr") {
+            if want(Metric::Nsr) {
                 let parahome = kind == DatasetKind::ParaHome;
                 let env = EnvConfig {
                     object_perturb: parahome,
                     nsi_follow: !parahome,
                     ..trial
                 };
-                cells.push(cell("nsr", skill, skill, rule, env));
+                cells.push(cell(Metric::Nsr, skill, skill, rule, env));
             }
         }
-        if want("nr") {
-            cells.push(cell("nr", skill, skill, None, base.clone()));
+        if want(Metric::Nr) {
+            cells.push(cell(Metric::Nr, skill, skill, None, base.clone()));
         }
     }
-    if want("tsr") {
+    if want(Metric::Tsr) {
         for (a, b) in tsr_pairs(kind, &meta.skills) {
             let Some(r) = Rule::of_skill(&b, shot_target(lib, &b)) else {
                 continue;
@@ -438,7 +439,7 @@ pub fn plan_cells(
                 },
                 ..base.clone()
             };
-            cells.push(cell("tsr", &a, &b, Some(r), env));
+            cells.push(cell(Metric::Tsr, &a, &b, Some(r), env));
         }
     }
     let mut warned = std::collections::BTreeSet::new();

@@ -4,6 +4,7 @@
 //! optionally written as Markdown. `--with-reference` adds the paper's rows
 //! (the paper's Tables 1, 2 and 5) beside ours.
 
+use crate::table::eval::Metric;
 use anyhow::{bail, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -122,12 +123,14 @@ pub fn load(path: &Path) -> Result<Vec<MethodRow>> {
                 rows.last_mut().unwrap()
             }
         };
-        let m = metric[i].as_str();
-        if let (Some(&n), true) = (steps.get(i), m != "nr") {
+        let Some(m) = Metric::from_name(&metric[i]) else {
+            bail!("{}: unknown metric `{}`", path.display(), metric[i]);
+        };
+        if let (Some(&n), true) = (steps.get(i), m != Metric::Nr) {
             let e = r.trial_steps.entry(to[i].clone()).or_insert(0);
             *e = (*e).max(n);
         }
-        if m == "tsr" {
+        if m == Metric::Tsr {
             r.tsr.insert((from[i].clone(), to[i].clone()), 100.0 * v);
             continue;
         }
@@ -136,10 +139,10 @@ pub fn load(path: &Path) -> Result<Vec<MethodRow>> {
             .entry(from[i].clone())
             .or_insert((f64::NAN, f64::NAN, f64::NAN));
         match m {
-            "sr" => cell.0 = 100.0 * v,
-            "nsr" => cell.1 = 100.0 * v,
-            "nr" => cell.2 = v,
-            other => bail!("{}: unknown metric `{other}`", path.display()),
+            Metric::Sr => cell.0 = 100.0 * v,
+            Metric::Nsr => cell.1 = 100.0 * v,
+            Metric::Nr => cell.2 = v,
+            Metric::Tsr => unreachable!("TSR cells are kept above"),
         }
     }
     Ok(rows)

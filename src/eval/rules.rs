@@ -20,22 +20,8 @@
 //! The reference Jumpshot/Setshot rules (with a bug that counts standing
 //! as success) have no clips here and are not offered.
 
+use crate::rl::humanoid::Probe;
 use serde::{Deserialize, Serialize};
-
-/// What a rule sees after one policy step.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Probe {
-    /// Root position, m.
-    pub root: [f32; 3],
-    /// Root linear velocity, m/s.
-    pub root_vel: [f32; 3],
-    /// Object positions, m.
-    pub obj: Vec<[f32; 3]>,
-    /// Object linear velocities, m/s.
-    pub obj_vel: Vec<[f32; 3]>,
-    /// Wrist positions (ParaHome: right, left), m.
-    pub wrists: Vec<[f32; 3]>,
-}
 
 /// A success rule.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

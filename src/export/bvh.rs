@@ -144,11 +144,10 @@ pub(crate) fn held(track: &Track, bodies: usize, objects: usize) -> Result<Vec<&
 /// A unit quaternion (x, y, z, w) of `q` (f32 storage), normalised in f64.
 pub(crate) fn unit(q: [f32; 4]) -> quat::Quat {
     let q = q.map(|v| v as f64);
-    let n = quat::dot(q, q).sqrt();
-    if n < 1e-12 {
+    if quat::dot(q, q).sqrt() < 1e-12 {
         return quat::IDENTITY;
     }
-    q.map(|v| v / n)
+    quat::normalize(q)
 }
 
 /// Rotation matrix (row-major, acting on column vectors) of a unit quaternion.

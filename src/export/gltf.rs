@@ -424,10 +424,9 @@ fn rotation_keys(qs: impl Iterator<Item = quat::Quat>) -> Vec<f32> {
     let mut prev: Option<quat::Quat> = None;
     let mut out = Vec::new();
     for q in qs {
-        let n = quat::dot(q, q).sqrt();
-        let mut q = q.map(|v| v / n);
-        if prev.is_some_and(|p| quat::dot(p, q) < 0.0) {
-            q = quat::neg(q);
+        let mut q = quat::normalize(q);
+        if let Some(p) = prev {
+            q = quat::sign_like(q, p);
         }
         prev = Some(q);
         out.extend(q.map(|v| v as f32));

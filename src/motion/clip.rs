@@ -306,9 +306,7 @@ fn smoothed_quats(rows: &[&[f32]], valid: &[bool], e: impl Fn(&[f32]) -> Vec3) -
             }
             let mut q = quat::from_expmap(e(r));
             if let Some(p) = prev {
-                if quat::dot(p, q) < 0.0 {
-                    q = quat::neg(q);
-                }
+                q = quat::sign_like(q, p);
             }
             prev = Some(q);
             q

@@ -118,6 +118,24 @@ pub fn neg(q: Quat) -> Quat {
     [-q[0], -q[1], -q[2], -q[3]]
 }
 
+/// `q` divided by its norm (no guard: a zero `q` gives NaNs).
+pub fn normalize(q: Quat) -> Quat {
+    let n = dot(q, q).sqrt();
+    q.map(|v| v / n)
+}
+
+/// `q` or `-q` (the same rotation), whichever is nearer `like`: `-q` when
+/// the four-component dot product of `like` and `q` is negative, in `f32`
+/// or `f64` (the sign smoothing of clips, object rewards and animation keys).
+pub fn sign_like<T: Float>(q: [T; 4], like: [T; 4]) -> [T; 4] {
+    let d = like[0] * q[0] + like[1] * q[1] + like[2] * q[2] + like[3] * q[3];
+    if d < T::zero() {
+        q.map(|c| -c)
+    } else {
+        q
+    }
+}
+
 /// Euclidean norm of a 3-vector.
 pub fn norm(v: Vec3) -> f64 {
     (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
@@ -127,6 +145,24 @@ pub fn norm(v: Vec3) -> f64 {
 pub fn rotate(q: Quat, v: Vec3) -> Vec3 {
     let p = mul(mul(q, [v[0], v[1], v[2], 0.0]), conj(q));
     [p[0], p[1], p[2]]
+}
+
+/// Heading of a root quaternion: atan2 of the rotated x-axis (`calc_heading`
+/// in Ingrid789/SkillMimic-V2 `skillmimic/utils/torch_utils.py`).
+pub fn heading(q: [f32; 4]) -> f64 {
+    let q = q.map(|v| v as f64);
+    let x = rotate(q, [1.0, 0.0, 0.0]);
+    x[1].atan2(x[0])
+}
+
+/// `a` wrapped to [-pi, pi), rad.
+pub fn wrap_angle(a: f64) -> f64 {
+    let tau = 2.0 * std::f64::consts::PI;
+    let mut a = (a + std::f64::consts::PI) % tau;
+    if a < 0.0 {
+        a += tau;
+    }
+    a - std::f64::consts::PI
 }
 
 #[cfg(test)]
@@ -193,5 +229,34 @@ mod tests {
             let rhs = rotate(qa, rotate(qb, v));
             prop_assert!(close(&lhs, &rhs, 1e-9));
         }
+    }
+
+    #[test]
+    fn sign_like_flips_only_against_a_negative_dot_product() {
+        let q = [0.1f64, -0.2, 0.3, 0.9];
+        assert_eq!(sign_like(q, [0.0, 0.0, 0.0, 1.0]), q);
+        assert_eq!(sign_like(q, [0.0, 0.0, 0.0, -1.0]), neg(q));
+        let q32 = q.map(|v| v as f32);
+        assert_eq!(sign_like(q32, [0.0, 0.0, 0.0, -1.0]), q32.map(|v| -v));
+        // a zero dot product keeps q
+        assert_eq!(sign_like(q, [0.0, 0.0, 0.0, 0.0]), q);
+    }
+
+    #[test]
+    fn wrap_angle_is_the_euclidean_remainder_bit_for_bit() {
+        // the STG's own copy was written with rem_euclid
+        let tau = 2.0 * std::f64::consts::PI;
+        for k in -2000..=2000 {
+            let a = k as f64 * 0.01234567 + 1e-3 * (k as f64).sin();
+            let want = (a + std::f64::consts::PI).rem_euclid(tau) - std::f64::consts::PI;
+            assert_eq!(wrap_angle(a).to_bits(), want.to_bits(), "{a}");
+        }
+    }
+
+    #[test]
+    fn normalize_gives_a_unit_quaternion() {
+        let q = normalize([1.0, 2.0, -2.0, 4.0]);
+        assert!((dot(q, q) - 1.0).abs() < 1e-15);
+        assert!(close(&q, &[0.2, 0.4, -0.4, 0.8], 1e-15));
     }
 }

@@ -28,7 +28,6 @@
 
 use super::{Mlp, Params};
 use crate::motion::{quat, MotionLib, Skeleton, State};
-use crate::reward::heading;
 use anyhow::{bail, Result};
 use candle_core::{Device, Tensor, D};
 use candle_nn::{Conv1d, Linear, Module};
@@ -79,7 +78,7 @@ pub fn channels(sk: Skeleton, n_objects: usize) -> usize {
 /// The raw (unstandardised) feature of one state; objects beyond those the
 /// state has are zeros.
 pub fn feature(s: &State, sk: Skeleton, n_objects: usize) -> Vec<f32> {
-    let inv = quat::from_expmap([0.0, 0.0, -heading(s.root_rot)]);
+    let inv = quat::from_expmap([0.0, 0.0, -quat::heading(s.root_rot)]);
     let r = [
         s.root_pos[0] as f64,
         s.root_pos[1] as f64,

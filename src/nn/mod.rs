@@ -15,22 +15,63 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use std::collections::BTreeMap;
 
-/// The compute device named on the command line (`cpu`, or `cuda` /
+/// A compute device as the command line (`--device`) and the recipes
+/// name it: `cpu`, or `cuda` / `cuda:N` (with the `cuda` feature).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DeviceName {
+    /// The CPU.
+    #[default]
+    Cpu,
+    /// A CUDA device: `cuda` (device 0) or `cuda:N`.
+    Cuda(Option<usize>),
+}
+
+impl std::str::FromStr for DeviceName {
+    type Err = anyhow::Error;
+
+    fn from_str(name: &str) -> Result<DeviceName> {
+        match name {
+            "cpu" => Ok(DeviceName::Cpu),
+            "cuda" => Ok(DeviceName::Cuda(None)),
+            n => match n.strip_prefix("cuda:").map(str::parse) {
+                Some(Ok(ordinal)) => Ok(DeviceName::Cuda(Some(ordinal))),
+                _ => bail!("unknown device `{n}` (cpu, cuda, cuda:N)"),
+            },
+        }
+    }
+}
+
+impl std::fmt::Display for DeviceName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DeviceName::Cpu => f.pad("cpu"),
+            DeviceName::Cuda(None) => f.pad("cuda"),
+            DeviceName::Cuda(Some(n)) => f.pad(&format!("cuda:{n}")),
+        }
+    }
+}
+
+impl DeviceName {
+    /// The device; a CUDA one only in a build with the `cuda` feature.
+    pub fn open(self) -> Result<Device> {
+        match self {
+            DeviceName::Cpu => Ok(Device::Cpu),
+            DeviceName::Cuda(ordinal) => {
+                if !cfg!(feature = "cuda") {
+                    bail!(
+                        "--device {self}: this build has no CUDA support (rebuild with --features cuda)"
+                    );
+                }
+                Ok(Device::new_cuda(ordinal.unwrap_or(0))?)
+            }
+        }
+    }
+}
+
+/// The compute device named `name` ([`DeviceName`]: `cpu`, or `cuda` /
 /// `cuda:N` with the `cuda` feature).
 pub fn device(name: &str) -> Result<Device> {
-    match name {
-        "cpu" => Ok(Device::Cpu),
-        n if n == "cuda" || n.starts_with("cuda:") => {
-            if !cfg!(feature = "cuda") {
-                bail!(
-                    "--device {n}: this build has no CUDA support (rebuild with --features cuda)"
-                );
-            }
-            let ordinal = n.strip_prefix("cuda:").map_or(Ok(0), |s| s.parse())?;
-            Ok(Device::new_cuda(ordinal)?)
-        }
-        other => bail!("unknown device `{other}` (cpu, cuda, cuda:N)"),
-    }
+    name.parse::<DeviceName>()?.open()
 }
 
 /// Named trainable variables, in a stable (sorted) order.
@@ -364,5 +405,24 @@ mod tests {
         // candle's matmul computes the input's gradient; this one does not
         assert!(ga.get(&x).is_some());
         assert!(gb.get(&x).is_none());
+    }
+
+    #[test]
+    fn device_names_parse_and_print_back() {
+        for n in ["cpu", "cuda", "cuda:3"] {
+            assert_eq!(n.parse::<DeviceName>().unwrap().to_string(), n);
+        }
+        for n in ["gpu", "cuda:", "cuda:x", "CPU"] {
+            let e = n.parse::<DeviceName>().unwrap_err().to_string();
+            assert_eq!(e, format!("unknown device `{n}` (cpu, cuda, cuda:N)"));
+        }
+        assert!(device("cpu").unwrap().is_cpu());
+        if !cfg!(feature = "cuda") {
+            let e = device("cuda:1").unwrap_err().to_string();
+            assert!(
+                e.contains("--device cuda:1: this build has no CUDA support"),
+                "{e}"
+            );
+        }
     }
 }

@@ -332,9 +332,8 @@ fn rotations(s: &State) -> impl Iterator<Item = f64> + '_ {
 fn obj_quats_like(s: &State, like: &State) -> Vec<f64> {
     let mut v = Vec::with_capacity(s.obj_rot.len());
     for (q, r) in s.obj_rot.chunks_exact(4).zip(like.obj_rot.chunks_exact(4)) {
-        let d: f32 = q.iter().zip(r).map(|(a, b)| a * b).sum();
-        let sgn = if d < 0.0 { -1.0 } else { 1.0 };
-        v.extend(q.iter().map(|x| sgn * *x as f64));
+        let q = quat::sign_like([q[0], q[1], q[2], q[3]], [r[0], r[1], r[2], r[3]]);
+        v.extend(q.map(|x| x as f64));
     }
     v
 }
@@ -501,29 +500,11 @@ impl Default for Align {
     }
 }
 
-/// Heading of a root quaternion: atan2 of the rotated x-axis (`calc_heading`
-/// in Ingrid789/SkillMimic-V2 `skillmimic/utils/torch_utils.py`).
-pub fn heading(q: [f32; 4]) -> f64 {
-    let q = q.map(|v| v as f64);
-    let x = quat::rotate(q, [1.0, 0.0, 0.0]);
-    x[1].atan2(x[0])
-}
-
-/// `a` wrapped to [-pi, pi), rad.
-pub fn wrap_angle(a: f64) -> f64 {
-    let tau = 2.0 * std::f64::consts::PI;
-    let mut a = (a + std::f64::consts::PI) % tau;
-    if a < 0.0 {
-        a += tau;
-    }
-    a - std::f64::consts::PI
-}
-
 /// The horizontal move that [`align_to`] applies: (yaw angle about z, rad;
 /// the pivot = `s`'s root xy; the new root xy).
 pub fn alignment(target: &State, s: &State, a: Align) -> (f64, [f64; 2], [f64; 2]) {
     let yaw = if a.yaw {
-        wrap_angle(heading(target.root_rot) - heading(s.root_rot))
+        quat::wrap_angle(quat::heading(target.root_rot) - quat::heading(s.root_rot))
     } else {
         0.0
     };
@@ -598,4 +579,4 @@ pub fn similarity(a: &State, b: &State, sk: Skeleton, w: &Weights, align: Align)
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -68,11 +68,11 @@ use super::{StepResult, VecEnv};
 use crate::augment::ats::{Ats, AtsParams, AtsWeights, Update};
 use crate::augment::seam::Seam;
 use crate::augment::stf::{StartKind, Step, StfParams, StfSampler, Trajectory};
-use crate::eval::rules::Probe;
-use crate::motion::{MotionLib, Skeleton, State};
+use crate::motion::{quat, MotionLib, Skeleton, State};
 use crate::nn::he::{self, HistoryEncoder};
 use crate::reward::{self, DatasetKind, RewardOptions, Weights};
 use crate::sim::mjcf::Model;
+use crate::sim::world::{rotation_of, vector_of};
 use crate::sim::{ContactReport, ObjectSpec, SimOptions, World};
 use anyhow::{bail, ensure, Context, Result};
 use candle_core::{Device, Tensor};
@@ -84,14 +84,17 @@ use serde::{Deserialize, Serialize};
 /// Slots of the skill condition (one-hot of the class id).
 pub use crate::motion::library::CONDITION_SLOTS;
 
-/// Which imitation reward trains the policy.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+/// Which imitation reward trains the policy (also `--method` of `skillaug
+/// train`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
     /// SkillMimic's multiplicative reward (Eqs. 12–17).
     #[default]
+    #[value(help = "SkillMimic's multiplicative reward")]
     Sm,
     /// DeepMimic's additive reward (Eq. 18).
+    #[value(help = "DeepMimic's additive reward")]
     Dm,
 }
 
@@ -254,7 +257,7 @@ pub fn reference_obs_dim(n_objects: usize) -> usize {
 pub fn write_reference_obs(s: &State, r: Option<&State>, sk: Skeleton, out: &mut [f32]) {
     out.fill(0.0);
     let Some(r) = r else { return };
-    let h = reward::heading(s.root_rot);
+    let h = quat::heading(s.root_rot);
     let inv = Rotation::from_rotation_z(-(h as f32));
     let mut i = 0;
     let mut put = |v: &[f32]| {
@@ -271,11 +274,11 @@ pub fn write_reference_obs(s: &State, r: Option<&State>, sk: Skeleton, out: &mut
         );
         put(&(inv * d).to_array());
     }
-    let dh = reward::wrap_angle(reward::heading(r.root_rot) - h);
+    let dh = quat::wrap_angle(quat::heading(r.root_rot) - h);
     put(&[dh.cos() as f32, dh.sin() as f32]);
-    put(&(inv * vec3(&r.root_linvel)).to_array());
+    put(&(inv * vector_of(&r.root_linvel)).to_array());
     for (po, ro) in s.obj_pos.chunks_exact(3).zip(r.obj_pos.chunks_exact(3)) {
-        put(&(inv * (vec3(ro) - vec3(po))).to_array());
+        put(&(inv * (vector_of(ro) - vector_of(po))).to_array());
     }
 }
 
@@ -283,14 +286,6 @@ pub fn write_reference_obs(s: &State, r: Option<&State>, sk: Skeleton, out: &mut
 /// 0..9 = key-body slots 7..16).
 pub fn fingertips(sk: Skeleton) -> &'static [usize] {
     &sk.key_bodies()[7..]
-}
-
-fn vec3(a: &[f32]) -> Vector {
-    Vector::new(a[0], a[1], a[2])
-}
-
-fn quat(a: &[f32]) -> Rotation {
-    Rotation::from_xyzw(a[0], a[1], a[2], a[3])
 }
 
 /// Tangent (rotated x) and normal (rotated z) of `q`.
@@ -317,8 +312,8 @@ pub fn write_observation(
     let mut angvel = Vec::new();
     w.body_frames(&mut rot, &mut angvel);
     let nb = sk.n_bodies();
-    let inv = Rotation::from_rotation_z(-(reward::heading(s.root_rot) as f32));
-    let root = vec3(&s.root_pos);
+    let inv = Rotation::from_rotation_z(-(quat::heading(s.root_rot) as f32));
+    let root = vector_of(&s.root_pos);
     out.fill(0.0);
     let mut i = 0;
     let mut put = |v: &[f32]| {
@@ -327,26 +322,26 @@ pub fn write_observation(
     };
     put(&[s.root_pos[2]]);
     for b in 1..nb {
-        put(&(inv * (vec3(&s.body_pos[3 * b..]) - root)).to_array());
+        put(&(inv * (vector_of(&s.body_pos[3 * b..]) - root)).to_array());
     }
     for b in 0..nb {
-        put(&tan_norm(inv * quat(&rot[4 * b..])));
+        put(&tan_norm(inv * rotation_of(&rot[4 * b..])));
     }
     for b in 0..nb {
-        put(&(inv * vec3(&s.body_vel[3 * b..])).to_array());
+        put(&(inv * vector_of(&s.body_vel[3 * b..])).to_array());
     }
     for b in 0..nb {
-        put(&(inv * vec3(&angvel[3 * b..])).to_array());
+        put(&(inv * vector_of(&angvel[3 * b..])).to_array());
     }
     for &f in fingertips(sk) {
         put(&contacts.map_or([0.0; 3], |c| c.body_force[f]));
     }
     for k in 0..w.n_objects() {
-        let p = vec3(&s.obj_pos[3 * k..]);
+        let p = vector_of(&s.obj_pos[3 * k..]);
         let d = inv * (p - root);
         put(&[d.x, d.y, p.z]);
-        put(&tan_norm(inv * quat(&s.obj_rot[4 * k..])));
-        put(&(inv * vec3(&s.obj_linvel[3 * k..])).to_array());
+        put(&tan_norm(inv * rotation_of(&s.obj_rot[4 * k..])));
+        put(&(inv * vector_of(&s.obj_linvel[3 * k..])).to_array());
         put(&(inv * Vector::from(w.object_angvel_world(k))).to_array());
     }
     // load_library refuses class ids >= CONDITION_SLOTS (motion::library::check_classes).
@@ -425,7 +420,7 @@ fn perturb_objects(s: &mut State, rng: &mut ChaCha8Rng) {
         let a = rng.random_range(0.0..std::f32::consts::TAU);
         s.obj_pos[3 * k] += r * a.cos();
         s.obj_pos[3 * k + 1] += r * a.sin();
-        let q = Rotation::from_rotation_z(yaw) * quat(&s.obj_rot[4 * k..]);
+        let q = Rotation::from_rotation_z(yaw) * rotation_of(&s.obj_rot[4 * k..]);
         s.obj_rot[4 * k..4 * k + 4].copy_from_slice(&[q.x, q.y, q.z, q.w]);
     }
 }
@@ -567,6 +562,21 @@ pub struct EpisodeRecord {
     pub ats_key: (usize, usize),
     /// Actions applied so far, `t * act_dim`.
     pub actions: Vec<f32>,
+}
+
+/// What the success rules (`crate::eval::rules`) see after one policy step.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Probe {
+    /// Root position, m.
+    pub root: [f32; 3],
+    /// Root linear velocity, m/s.
+    pub root_vel: [f32; 3],
+    /// Object positions, m.
+    pub obj: Vec<[f32; 3]>,
+    /// Object linear velocities, m/s.
+    pub obj_vel: Vec<[f32; 3]>,
+    /// Wrist positions (ParaHome: right, left), m.
+    pub wrists: Vec<[f32; 3]>,
 }
 
 /// One environment's step as `eval --record` keeps it.
@@ -1117,8 +1127,7 @@ impl Ctx<'_> {
         let Some(target) = self.lib.state(c2, j) else {
             return;
         };
-        let yaw =
-            reward::wrap_angle(reward::heading(s.root_rot) - reward::heading(target.root_rot));
+        let yaw = quat::wrap_angle(quat::heading(s.root_rot) - quat::heading(target.root_rot));
         let anchor = Anchor {
             yaw,
             pivot: [target.root_pos[0] as f64, target.root_pos[1] as f64],

@@ -1007,6 +1007,14 @@ impl Agent {
     /// [`Agent::sidecar_path`]); each file is written to a temporary name
     /// and renamed into place.
     pub fn save(&self, path: &Path) -> Result<()> {
+        let mut staged = crate::table::io::Staged::new();
+        self.stage(&mut staged, path)?;
+        staged.commit()
+    }
+
+    /// Stage the files of [`Agent::save`] at `path` into `staged`, to be
+    /// moved into place with the other outputs staged there.
+    pub fn stage(&self, staged: &mut crate::table::io::Staged, path: &Path) -> Result<()> {
         let mut map: HashMap<String, Tensor> = HashMap::new();
         for (k, (name, var)) in self.vars.iter().enumerate() {
             map.insert(name.clone(), var.as_tensor().clone());
@@ -1035,14 +1043,11 @@ impl Agent {
                 .then(|| (self.vnorm.mean[0], self.vnorm.var[0], self.vnorm.count)),
         };
         let sp = Self::sidecar_path(path);
-        let mut staged = crate::table::io::Staged::new();
         staged.with_path(path, |tmp| {
             candle_core::safetensors::save(&map, tmp)
                 .with_context(|| format!("writing {}", path.display()))
         })?;
-        staged.text(&sp, &serde_json::to_string_pretty(&side)?)?;
-        staged.commit()?;
-        Ok(())
+        staged.text(&sp, &serde_json::to_string_pretty(&side)?)
     }
 
     /// Load a checkpoint written by [`Agent::save`] onto `dev`.

@@ -26,6 +26,7 @@ use crate::motion::MotionLib;
 use crate::reward::{DatasetKind, RewardOptions, Weights};
 use crate::sim::mjcf::Model;
 use crate::sim::{objects, SimOptions};
+use crate::table::io::StagedDir;
 use crate::table::train::{MetricRow, Metrics};
 use anyhow::{bail, ensure, Context, Result};
 use rand::SeedableRng;
@@ -1065,9 +1066,11 @@ impl<'a> Trainer<'a> {
         Ok(self.metrics.last().expect("a row was just pushed"))
     }
 
-    /// Write the checkpoint into `out/checkpoint/` (into `checkpoint.tmp/`,
-    /// then swapped into place). Collective: every rank sends its part and
-    /// rank 0 writes.
+    /// Write the checkpoint into `out/checkpoint/` (staged in
+    /// `checkpoint.tmp/`, then swapped into place by
+    /// [`crate::table::io::StagedDir`], which leaves `checkpoint.old/` when
+    /// cut short between its renames). Collective: every rank sends its
+    /// part and rank 0 writes.
     ///
     /// # Errors
     /// A collective or a write that fails.
@@ -1121,32 +1124,18 @@ impl<'a> Trainer<'a> {
             ranks: others,
             settings: Some(resume_settings(&self.cfg, &self.stf_cfg, self.seed)?),
         };
-        let tmp = out.join("checkpoint.tmp");
-        let old = out.join("checkpoint.old");
-        let at = |p: &Path| format!("checkpoint: cannot write {}", p.display());
-        if tmp.exists() {
-            std::fs::remove_dir_all(&tmp).with_context(|| at(&tmp))?;
-        }
-        std::fs::create_dir_all(&tmp).with_context(|| at(&tmp))?;
-        self.agent.save(&tmp.join("agent.safetensors"))?;
-        for (r, bytes) in actions.iter().enumerate() {
-            let p = tmp.join(episodes_file(r));
-            std::fs::write(&p, bytes).with_context(|| at(&p))?;
-        }
-        let p = tmp.join("state.json");
-        std::fs::write(&p, serde_json::to_vec(&st)?).with_context(|| at(&p))?;
-        let dir = ckpt_dir(out);
-        if dir.exists() {
-            if old.exists() {
-                std::fs::remove_dir_all(&old).with_context(|| at(&old))?;
+        let write = || -> Result<()> {
+            let mut dir = StagedDir::new(&ckpt_dir(out))?;
+            dir.with_staged("agent.safetensors", |staged, path| {
+                self.agent.stage(staged, path)
+            })?;
+            for (r, bytes) in actions.iter().enumerate() {
+                dir.bytes(&episodes_file(r), bytes)?;
             }
-            std::fs::rename(&dir, &old).with_context(|| at(&old))?;
-        }
-        std::fs::rename(&tmp, &dir).with_context(|| at(&dir))?;
-        if old.exists() {
-            std::fs::remove_dir_all(&old).with_context(|| at(&old))?;
-        }
-        Ok(())
+            dir.bytes("state.json", &serde_json::to_vec(&st)?)?;
+            dir.commit()
+        };
+        write().context("checkpoint")
     }
 
     /// The metadata that `policy.meta.json` holds for the agent as it is.

@@ -75,6 +75,29 @@ pub fn sim_rate(
     })
 }
 
+/// Medians over `repeat` rounds of [`sim_rate`] on one thread and on
+/// `threads` threads (one of each per round), in that order.
+///
+/// # Errors
+/// As [`sim_rate`].
+pub fn sim_rates(
+    model: &Model,
+    opts: &SimOptions,
+    start: &State,
+    threads: usize,
+    worlds: usize,
+    policy_steps: usize,
+    repeat: usize,
+) -> Result<(f64, f64)> {
+    let mut one = Vec::new();
+    let mut all = Vec::new();
+    for _ in 0..repeat {
+        one.push(sim_rate(model, opts, start, 1, worlds, policy_steps)?);
+        all.push(sim_rate(model, opts, start, threads, worlds, policy_steps)?);
+    }
+    Ok((median(one), median(all)))
+}
+
 /// The models `bench sim` times: `full` ("full (with fingers)") and
 /// `full` without the bodies below the hands ("without fingers"), each
 /// with the indices of its bodies in `full`.

@@ -358,11 +358,19 @@ fn q4(q: Rotation) -> [f32; 4] {
     [q.x, q.y, q.z, q.w]
 }
 
-fn rot_of(a: &[f32]) -> Rotation {
-    Rotation::from_xyzw(a[0], a[1], a[2], a[3]).normalize()
+/// The rotation of the first four values of `a`, a quaternion (x, y, z, w)
+/// taken as it is (not normalised).
+pub fn rotation_of(a: &[f32]) -> Rotation {
+    Rotation::from_xyzw(a[0], a[1], a[2], a[3])
 }
 
-fn vec_of(a: &[f32]) -> Vector {
+/// [`rotation_of`] normalised: a unit rotation for the simulator.
+fn unit_rotation_of(a: &[f32]) -> Rotation {
+    rotation_of(a).normalize()
+}
+
+/// The vector of the first three values of `a`.
+pub fn vector_of(a: &[f32]) -> Vector {
     Vector::new(a[0], a[1], a[2])
 }
 
@@ -688,7 +696,7 @@ impl World {
             return;
         }
         old.copy_from_slice(&t);
-        let angles = rot::motor_angles(vec_of(&t));
+        let angles = rot::motor_angles(vector_of(&t));
         let g = self.sk.gains[j];
         let joint = self
             .pw
@@ -802,14 +810,14 @@ impl World {
         let mut pos = vec![Vector::ZERO; n];
         let mut w = vec![Vector::ZERO; n];
         let mut v = vec![Vector::ZERO; n];
-        rot[0] = rot_of(&s.root_rot);
-        pos[0] = vec_of(&s.root_pos);
-        w[0] = self.world_angvel(rot[0], vec_of(&s.root_angvel));
-        v[0] = vec_of(&s.root_linvel);
+        rot[0] = unit_rotation_of(&s.root_rot);
+        pos[0] = vector_of(&s.root_pos);
+        w[0] = self.world_angvel(rot[0], vector_of(&s.root_angvel));
+        v[0] = vector_of(&s.root_linvel);
         for i in 1..n {
             let p = self.sk.parents[i].expect("parent");
-            let e = vec_of(&s.joint_rot[3 * (i - 1)..]);
-            let de = vec_of(&s.joint_vel[3 * (i - 1)..]);
+            let e = vector_of(&s.joint_rot[3 * (i - 1)..]);
+            let de = vector_of(&s.joint_vel[3 * (i - 1)..]);
             rot[i] = (rot[p] * rot::from_expmap(e)).normalize();
             pos[i] = pos[p] + rot[p] * self.sk.offsets[i];
             w[i] = w[p] + rot[p] * rot::jl_mul(e, de);
@@ -823,13 +831,13 @@ impl World {
             b.set_angvel(w[i], true);
         }
         for k in 0..self.n_objects() {
-            let r = rot_of(&s.obj_rot[4 * k..]);
-            let p = vec_of(&s.obj_pos[3 * k..]);
-            let wk = self.world_angvel(r, vec_of(&s.obj_angvel[3 * k..]));
+            let r = unit_rotation_of(&s.obj_rot[4 * k..]);
+            let p = vector_of(&s.obj_pos[3 * k..]);
+            let wk = self.world_angvel(r, vector_of(&s.obj_angvel[3 * k..]));
             let b = &mut self.pw.bodies[self.objects[k]];
             b.set_position(Pose::from_parts(p, r), true);
             let com = p + r * b.local_center_of_mass();
-            b.set_linvel(vec_of(&s.obj_linvel[3 * k..]) + wk.cross(com - p), true);
+            b.set_linvel(vector_of(&s.obj_linvel[3 * k..]) + wk.cross(com - p), true);
             b.set_angvel(wk, true);
         }
         // forget joint impulses of the previous episode (warm start)

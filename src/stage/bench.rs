@@ -17,7 +17,7 @@
 
 use crate::cli::{Bench, StageArgs};
 use crate::sim::bench::{
-    median, settings_changed, sim_rate, state_of_bodies, with_and_without_fingers,
+    median, settings_changed, sim_rates, state_of_bodies, with_and_without_fingers,
 };
 use crate::sim::mjcf::Model;
 use crate::sim::SimOptions;
@@ -82,17 +82,17 @@ fn ingest(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
     Ok(())
 }
 
-fn sim(repeat: usize, data_root: Option<PathBuf>, opts: &SimOptions) -> Result<()> {
+/// BallPlay ingested into a temporary folder (removed with the guard).
+fn ballplay(data_root: Option<PathBuf>) -> Result<(tempfile::TempDir, PathBuf)> {
     let tmp = tempfile::tempdir()?;
     let out = tmp.path().join("ballplay");
-    super::ingest::run(
-        &super::Common::new(StageArgs::for_dataset(
-            out.clone(),
-            "ballplay",
-            data_root.clone(),
-        ))?,
-        false,
-    )?;
+    let args = StageArgs::for_dataset(out.clone(), "ballplay", data_root);
+    super::ingest::run(&super::Common::new(args)?, false)?;
+    Ok((tmp, out))
+}
+
+fn sim(repeat: usize, data_root: Option<PathBuf>, opts: &SimOptions) -> Result<()> {
+    let (_tmp, out) = ballplay(data_root.clone())?;
     let lib = crate::table::load_library(&out)?;
     let root = crate::dataset::data_root(data_root.as_deref())?;
     let full = Model::for_skeleton(&root, lib.skeleton)?;
@@ -113,13 +113,7 @@ fn sim(repeat: usize, data_root: Option<PathBuf>, opts: &SimOptions) -> Result<(
     );
     for (name, model, bodies) in with_and_without_fingers(&full) {
         let st = state_of_bodies(&s, &bodies);
-        let mut one = Vec::new();
-        let mut all = Vec::new();
-        for _ in 0..repeat {
-            one.push(sim_rate(&model, opts, &st, 1, worlds, policy_steps)?);
-            all.push(sim_rate(&model, opts, &st, threads, worlds, policy_steps)?);
-        }
-        let (one, all) = (median(one), median(all));
+        let (one, all) = sim_rates(&model, opts, &st, threads, worlds, policy_steps, repeat)?;
         println!(
             "{name:<22} {:>6} {one:>14.0} {all:>16.0} {:>7.2}x   ({:.0} steps/s per core)",
             model.bodies.len(),
@@ -152,13 +146,11 @@ fn sim(repeat: usize, data_root: Option<PathBuf>, opts: &SimOptions) -> Result<(
 }
 
 fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
-    use super::train::setup;
+    use crate::augment::settings::StfConfig;
     use crate::rl::bench::time_iterations;
     use crate::rl::config::{Preset, TrainConfig};
-    let tmp = tempfile::tempdir()?;
-    let out = tmp.path().join("ballplay");
-    let common = super::Common::new(StageArgs::for_dataset(out.clone(), "ballplay", data_root))?;
-    super::ingest::run(&common, false)?;
+    use crate::rl::trainer::Setup;
+    let (_tmp, out) = ballplay(data_root.clone())?;
     println!(
         "{:<26} {:>10} {:>14} {:>9} {:>12} {:>10} {:>13}   ({} threads; medians of {repeat} iterations after one more)",
         "preset",
@@ -181,7 +173,8 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
             horizon: Some(32),
             ..TrainConfig::default()
         };
-        let t = time_iterations(&setup(&common, &cfg)?, &cfg, repeat)?;
+        let s = Setup::load(&out, data_root.as_deref(), &cfg, &StfConfig::default())?;
+        let t = time_iterations(&s, &cfg, repeat)?;
         println!(
             "{name:<26} {:>10.0} {:>14.0} {:>8.0}% {:>12.0} {:>10.0} {:>13.0}",
             t.samples_per_s(),

@@ -3,51 +3,15 @@
 //! Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/offline_state_search.py`;
 //! algorithm in [`crate::augment::stg`]).
 
-use super::{Common, Outputs};
-use crate::augment::stg::{self, StgParams};
-use crate::augment::MaskRule;
+use super::Common;
+use crate::augment::settings::StgConfig;
+use crate::augment::stg;
 use crate::motion::Skeleton;
-use crate::reward::{Align, DatasetKind, Weights};
+use crate::reward::{DatasetKind, Weights};
 use crate::table;
+use crate::table::io::Outputs;
 use anyhow::{bail, Result};
-use serde::{Deserialize, Serialize};
 use std::time::Instant;
-
-/// Settings of the `[build-stg]` recipe table.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct StgConfig {
-    /// Similarity threshold tau (Table 7).
-    pub tau: f64,
-    /// Maximum masked states N_max (Table 7).
-    pub n_max: u32,
-    /// Eq. 20 as printed ("paper", ceil) or the reference code's floor rule ("reference").
-    pub mask_rule: MaskRule,
-    /// Align the start state's heading too, not only its root x, y (reference code; paper: x, y only).
-    pub align_yaw: bool,
-    /// The reference code's direction: for each frame of A, the best state of each other skill.
-    pub per_target: bool,
-}
-
-impl crate::config::Validate for StgConfig {
-    fn validate(&self, stage: &str) -> Result<()> {
-        let c = crate::config::Check::new(stage);
-        c.range("tau", self.tau, 0.0, 1.0)?;
-        c.count("n_max", self.n_max as u64, 0, 10_000)
-    }
-}
-
-impl Default for StgConfig {
-    fn default() -> Self {
-        StgConfig {
-            tau: 1e-10,
-            n_max: 10,
-            mask_rule: MaskRule::Paper,
-            align_yaw: true,
-            per_target: false,
-        }
-    }
-}
 
 /// Run the stage.
 pub fn run(common: &Common, per_target_flag: bool) -> Result<()> {
@@ -71,17 +35,7 @@ pub fn run(common: &Common, per_target_flag: bool) -> Result<()> {
     }
     let kind = DatasetKind::of_library(&lib);
     let weights = Weights::sm(kind);
-    let params = StgParams {
-        tau: cfg.tau,
-        n_max: cfg.n_max,
-        mask_rule: cfg.mask_rule,
-        align: Align {
-            xy: true,
-            yaw: cfg.align_yaw,
-        },
-        per_target: cfg.per_target,
-    };
-    let (edges, summary) = stg::build(&lib, &weights, &params);
+    let (edges, summary) = stg::build(&lib, &weights, &cfg.params());
     let secs = started.elapsed().as_secs_f64();
 
     let resolved = common.resolved_toml("build-stg", &cfg)?;

@@ -1,6 +1,6 @@
 //! `skillaug check-contact`: what the clips' contact flag measures. Every
 //! valid frame of every clip with a ball (an ingested run folder, `--from`)
-//! is set into the rapier3d world ([`crate::sim::checks::contact_agreement`])
+//! is set into the rapier3d world ([`crate::sim::checks::contact_agreements`])
 //! and three rules are compared with the flag frame by frame: hand-ball
 //! proximity at `train.contact_radius` (the trainer's default rule),
 //! touching pairs at any physics substep of one policy step from the frame,
@@ -8,11 +8,9 @@
 //! radius, from 0.10 m to 0.40 m, at which the proximity rule agrees best.
 
 use super::Common;
-use crate::sim::checks::contact_agreement;
+use crate::sim::checks::{contact_agreements, ContactAgreement};
 use crate::sim::mjcf::Model;
-use crate::sim::{objects, SimOptions};
 use anyhow::{bail, Result};
-use rayon::prelude::*;
 
 /// Run the command: print the table.
 pub fn run(common: &Common) -> Result<()> {
@@ -21,16 +19,7 @@ pub fn run(common: &Common) -> Result<()> {
     let root = crate::dataset::data_root(common.args.data_root.as_deref())?;
     let model = Model::for_skeleton(&root, lib.skeleton)?;
     let radius = cfg.contact_radius as f32;
-    let per_clip = (0..lib.clips.len())
-        .into_par_iter()
-        .map(|c| {
-            let row = &lib.clips[c];
-            let objs = objects::load_all(&row.objects, &root)?;
-            let opts = SimOptions::for_fps(row.fps as f64);
-            contact_agreement(&lib, c, &model, &objs, &opts).map(|a| a.map(|a| (c, a)))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let found: Vec<_> = per_clip.into_iter().flatten().collect();
+    let found = contact_agreements(&lib, &model, &root)?;
     if found.is_empty() {
         bail!(
             "check-contact: no clip in {} has an object",
@@ -46,7 +35,6 @@ pub fn run(common: &Common) -> Result<()> {
         "touch",
         "touch-last"
     );
-    let (mut all, mut n) = (Vec::new(), 0usize);
     for (c, a) in &found {
         println!(
             "{:<34} {:>6} {:>5.0}% {:>9.1}% {:>8.1}% {:>9.1}%",
@@ -57,14 +45,9 @@ pub fn run(common: &Common) -> Result<()> {
             100.0 * a.agreement(|r| r.2),
             100.0 * a.agreement(|r| r.3),
         );
-        all.extend(a.rows.iter().copied());
-        n += a.frames;
     }
-    let total = crate::sim::checks::ContactAgreement {
-        frames: n,
-        flagged: all.iter().filter(|r| r.0).count(),
-        rows: all,
-    };
+    let total = ContactAgreement::all(found.iter().map(|(_, a)| a));
+    let n = total.frames;
     println!(
         "all {} frames: flag set in {:.1}%; agreement: proximity {:.2} m {:.1}%, touch (any substep) {:.1}%, touch (last substep) {:.1}%",
         n,
@@ -74,12 +57,7 @@ pub fn run(common: &Common) -> Result<()> {
         100.0 * total.agreement(|r| r.2),
         100.0 * total.agreement(|r| r.3),
     );
-    let (best_r, best) = (10..=40)
-        .map(|k| {
-            let r = k as f32 / 100.0;
-            (r, total.proximity(r))
-        })
-        .fold((0.0, -1.0), |a, b| if b.1 > a.1 { b } else { a });
+    let (best_r, best) = total.best_radius();
     println!(
         "best proximity radius {best_r:.2} m: {:.1}% agreement",
         100.0 * best

@@ -11,6 +11,7 @@ use crate::eval::evaluator::{load_policy, plan_cells, EvalConfig, Evaluator};
 use crate::eval::method_label;
 use crate::rl::humanoid::HeRuntime;
 use crate::rl::trainer::Setup;
+use crate::table::io::Outputs;
 use crate::table::{self, eval as etable};
 use anyhow::Result;
 use std::path::Path;
@@ -65,7 +66,7 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         .with("ingest_id", table::ingest_id(&input.join("clips.parquet"))?)
         .with("label", label.clone())
         .with("policy", policy.display().to_string());
-    let mut out = super::Outputs::new(&common.args.out)?;
+    let mut out = Outputs::new(&common.args.out)?;
     out.parquet(
         "eval_trials.parquet",
         &etable::trials_batch(&label, &rows)?,

@@ -7,47 +7,23 @@ use crate::export::bvh::{self, Units};
 use crate::export::motions::gather;
 use crate::export::{gltf, onnx};
 use crate::sim::mjcf::Model;
-use crate::table::io::Staged;
+use crate::table::io::{MadeDirs, Staged};
 use anyhow::{bail, Context, Result};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// Run the command.
 pub fn run(a: &ExportArgs) -> Result<()> {
-    let mut created = Vec::new();
-    let r = export(a, &mut created);
+    let mut made = MadeDirs::new();
+    let r = export(a, &mut made);
     if r.is_err() {
         // the staged files removed themselves; folders made for them go too
-        for dir in created.iter().rev() {
-            let _ = std::fs::remove_dir(dir);
-        }
+        made.remove();
     }
     r
 }
 
-/// Create folder `dir` (and its missing parents), noting each one made.
-fn make_dir(dir: &Path, created: &mut Vec<PathBuf>) -> Result<()> {
-    let mut missing = Vec::new();
-    let mut d = Some(dir);
-    while let Some(p) = d.filter(|p| !p.as_os_str().is_empty() && !p.exists()) {
-        missing.push(p.to_path_buf());
-        d = p.parent();
-    }
-    std::fs::create_dir_all(dir)
-        .with_context(|| format!("cannot create the output folder {}", dir.display()))?;
-    created.extend(missing.into_iter().rev());
-    Ok(())
-}
-
-/// [`make_dir`] of the folder of file `path`.
-fn make_parent(path: &Path, created: &mut Vec<PathBuf>) -> Result<()> {
-    match path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        Some(dir) => make_dir(dir, created),
-        None => Ok(()),
-    }
-}
-
-fn export(a: &ExportArgs, created: &mut Vec<PathBuf>) -> Result<()> {
+fn export(a: &ExportArgs, made: &mut MadeDirs) -> Result<()> {
     let started = Instant::now();
     let motion = a.bvh.is_some() || a.gltf.is_some();
     // --onnx with --bvh or --gltf is refused by clap (`conflicts_with_all`)
@@ -66,7 +42,7 @@ fn export(a: &ExportArgs, created: &mut Vec<PathBuf>) -> Result<()> {
             bail!("export --onnx needs --policy TRAIN_DIR (the output folder of `skillaug train`)");
         };
         let bytes = onnx::policy_to_onnx(policy)?;
-        make_parent(out, created)?;
+        made.parent_of(out)?;
         staged.bytes(out, &bytes)?;
         written.push((out.clone(), bytes.len()));
     } else {
@@ -87,7 +63,7 @@ fn export(a: &ExportArgs, created: &mut Vec<PathBuf>) -> Result<()> {
             bail!("export: nothing to export: give --clip, --skill, --stf or --rollouts");
         }
         if let Some(dir) = &a.bvh {
-            make_dir(dir, created)?;
+            made.dir(dir)?;
             for m in &motions {
                 for t in &m.tracks {
                     let name = if m.tracks.len() > 1 {
@@ -117,7 +93,7 @@ fn export(a: &ExportArgs, created: &mut Vec<PathBuf>) -> Result<()> {
                 .map(|n| crate::sim::ObjectSpec::load(n, &root))
                 .collect::<Result<Vec<_>>>()?;
             let bytes = gltf::to_glb(&model, &objects, &motions)?;
-            make_parent(path, created)?;
+            made.parent_of(path)?;
             staged.bytes(path, &bytes)?;
             written.push((path.clone(), bytes.len()));
         }

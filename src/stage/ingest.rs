@@ -2,9 +2,10 @@
 //! `frames.parquet` ([`crate::ingest`]), in parallel, all or nothing (or the
 //! good clips with `--skip-bad`), with a summary per skill.
 
-use super::{Common, Outputs};
+use super::Common;
 use crate::dataset::ClipSource;
 use crate::ingest::{ingest_clip, metadata, table_rows, IngestConfig, Ingested};
+use crate::table::io::Outputs;
 use crate::{progress, table};
 use anyhow::{bail, Result};
 use rayon::prelude::*;

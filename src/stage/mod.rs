@@ -21,11 +21,9 @@ pub mod view;
 
 use crate::cli::StageArgs;
 use crate::config::{self, Recipe, SetArg};
-use crate::table::io::Staged;
-use anyhow::{Context, Result};
-use arrow::record_batch::RecordBatch;
+use anyhow::Result;
 use serde::{de::DeserializeOwned, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// What every stage gets: its common arguments, the recipe and the overrides.
 pub struct Common {
@@ -119,53 +117,5 @@ impl Common {
         let sets: Vec<toml::Value> = a.set.iter().map(|s| s.clone().into()).collect();
         t.insert("set".into(), toml::Value::Array(sets));
         config::resolved_toml(stage, settings, &t)
-    }
-}
-
-/// The outputs of one stage in its run folder, committed all at once. The
-/// folder itself is made (and removed again when the stage fails and
-/// leaves it empty) by the stage's [`crate::table::io::OutputLock`].
-pub struct Outputs {
-    dir: PathBuf,
-    staged: Staged,
-}
-
-impl Outputs {
-    /// Stage outputs into `dir` (created if missing).
-    pub fn new(dir: &Path) -> Result<Outputs> {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create the output folder {}", dir.display()))?;
-        Ok(Outputs {
-            dir: dir.to_path_buf(),
-            staged: Staged::new(),
-        })
-    }
-
-    /// Stage `<dir>/<name>` as Parquet.
-    pub fn parquet(
-        &mut self,
-        name: &str,
-        batch: &RecordBatch,
-        meta: &[(String, String)],
-    ) -> Result<()> {
-        let dest = self.dir.join(name);
-        self.staged.parquet(&dest, batch, meta)
-    }
-
-    /// Stage `<dir>/<name>`, written by `write` to the temporary path it gets.
-    pub fn with_path(&mut self, name: &str, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-        let dest = self.dir.join(name);
-        self.staged.with_path(&dest, write)
-    }
-
-    /// Stage `<dir>/<name>` as text.
-    pub fn text(&mut self, name: &str, text: &str) -> Result<()> {
-        let dest = self.dir.join(name);
-        self.staged.text(&dest, text)
-    }
-
-    /// Move every staged output into place.
-    pub fn commit(self) -> Result<()> {
-        self.staged.commit()
     }
 }

@@ -3,8 +3,9 @@
 //! B.5, Eq. 23) and write `he.safetensors`, `he.config.json`,
 //! `he_loss.parquet` and `he_embeddings.parquet`.
 
-use super::{Common, Outputs};
+use super::Common;
 use crate::nn::he_train::{pretrain, HeSettings};
+use crate::table::io::Outputs;
 use crate::{nn, progress, table};
 use anyhow::{Context, Result};
 use std::io::IsTerminal;
@@ -57,9 +58,14 @@ pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
         .with("seed", common.args.seed.to_string())
         .with("separation_untrained", format!("{sep_before:.6}"))
         .with("separation_trained", format!("{sep_after:.6}"));
-    let emb_rows: Vec<(u32, u32, String, [f32; 3])> = trained
+    let emb_rows: Vec<table::he::EmbeddingRow> = trained
         .iter()
-        .map(|(c, t, h)| (*c as u32, *t as u32, lib.clips[*c].skill.clone(), *h))
+        .map(|(c, t, h)| table::he::EmbeddingRow {
+            clip_id: *c as u32,
+            frame: *t as u32,
+            skill: lib.clips[*c].skill.clone(),
+            h: *h,
+        })
         .collect();
     let mut out = Outputs::new(&common.args.out)?;
     out.with_path("he.safetensors", |path| {

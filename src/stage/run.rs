@@ -8,8 +8,7 @@
 
 use super::Common;
 use crate::cli::StageArgs;
-use crate::config::{hash_text, SetArg};
-use crate::pipeline::{plan, policies, policy_name, Lock, RunConfig, Todo};
+use crate::pipeline::{hashed_plan, policies, policy_name, Lock, RunConfig, Todo};
 use anyhow::{bail, Result};
 use std::path::{Path, PathBuf};
 
@@ -39,31 +38,16 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
         recipe: Some(recipe.to_path_buf()),
         ..args.clone()
     };
-    let table_text = |stage: &str| -> String {
-        let t = common
-            .recipe
-            .table
-            .get(stage)
-            .map(|v| toml::to_string(v).unwrap_or_default())
-            .unwrap_or_default();
-        let sets: Vec<&str> = common
-            .sets
-            .iter()
-            .filter(|s: &&SetArg| s.path[0] == stage)
-            .map(|s| s.raw.as_str())
-            .collect();
-        format!("[{stage}]\n{t}\nset={sets:?}")
-    };
     let policies = policies(&cfg);
-    let first = hash_text(&format!(
-        "dataset={} seed={} data_root={:?} stf={}",
-        cfg.dataset,
+    let steps = hashed_plan(
+        &cfg,
+        &common.recipe,
+        &common.sets,
         args.seed,
-        args.data_root,
-        table_text("sample-stf")
-    ));
+        args.data_root.as_deref(),
+    );
     let mut ran = 0;
-    for step in plan(&cfg, table_text, first) {
+    for step in steps {
         let (key, hash, mi) = (&step.key, &step.hash, step.policy);
         let todo = lock.todo(key, hash);
         if todo == Todo::UpToDate {

@@ -10,51 +10,20 @@
 //! trajectory id), so the output depends only on the inputs, the settings and
 //! the seed, not on the thread count.
 
-use super::{Common, Outputs};
+use super::Common;
 use crate::augment::ats::Ats;
+use crate::augment::settings::StfConfig;
 use crate::augment::stf::{StfSampler, Trajectory};
 use crate::motion::Skeleton;
 use crate::reward::{DatasetKind, Weights};
 use crate::table;
+use crate::table::io::Outputs;
 use anyhow::{bail, Context, Result};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use std::path::Path;
 use std::time::Instant;
-
-pub use crate::augment::settings::StfConfig;
-
-/// Fill `ats` from the rewards table at `path`.
-fn load_rewards(path: &Path, lib: &crate::motion::MotionLib, ats: &mut Ats) -> Result<usize> {
-    let rows = table::stf::read_rewards(path)
-        .context("sample-stf.rewards: cannot use the ATS rewards table")?;
-    let mut seen = std::collections::BTreeSet::new();
-    for (i, (c, f, r)) in rows.iter().enumerate() {
-        let Some(cf) = lib.frames.get(*c as usize) else {
-            bail!(
-                "{}: row {i}: clip_id {c} is not a clip of this run ({} clips)",
-                path.display(),
-                lib.clips.len()
-            );
-        };
-        if *f as usize >= cf.frames {
-            bail!(
-                "{}: row {i}: frame {f} is outside clip {c} ({} frames)",
-                path.display(),
-                cf.frames
-            );
-        }
-        if !seen.insert((*c, *f)) {
-            bail!(
-                "{}: row {i}: a second row for clip {c}, frame {f}",
-                path.display()
-            );
-        }
-        ats.set_mean(*c as usize, *f as usize, *r);
-    }
-    Ok(rows.len())
-}
 
 /// Run the stage.
 pub fn run(common: &Common) -> Result<()> {
@@ -97,7 +66,14 @@ pub fn run(common: &Common) -> Result<()> {
     let n_rewards = if cfg.rewards.is_empty() {
         0
     } else {
-        load_rewards(Path::new(&cfg.rewards), &lib, &mut ats)?
+        let path = Path::new(&cfg.rewards);
+        let rows = table::stf::read_rewards(path)
+            .context("sample-stf.rewards: cannot use the ATS rewards table")?;
+        table::stf::check_rewards(path, &rows, &lib)?;
+        for &(c, f, r) in &rows {
+            ats.set_mean(c as usize, f as usize, r);
+        }
+        rows.len()
     };
     let weights = Weights::sm(DatasetKind::of_library(&lib));
     let mut sampler = StfSampler::new(&lib, &edges, weights);

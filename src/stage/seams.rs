@@ -12,7 +12,7 @@ use anyhow::Result;
 /// Run the command: print the table.
 pub fn run(common: &Common) -> Result<()> {
     let cfg: crate::rl::config::TrainConfig = common.settings("train")?;
-    let stf: super::sample_stf::StfConfig = common.settings("sample-stf")?;
+    let stf: crate::augment::settings::StfConfig = common.settings("sample-stf")?;
     let (p, _) = stf.params()?;
     let lib = crate::table::load_library(common.input_dir())?;
     let w = Weights::sm(DatasetKind::of_library(&lib));

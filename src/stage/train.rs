@@ -14,33 +14,20 @@
 
 use super::Common;
 use crate::rl::comm::Comm;
+use crate::rl::config::{Switches, TrainConfig};
 use crate::rl::trainer::{history_encoder, Setup, TrainInputs, Trainer};
+use crate::table::io::Outputs;
 use crate::table::{self, train::MetricRow};
 use anyhow::{Context, Result};
-use std::path::Path;
 
-pub use crate::rl::config::{PolicyMeta, PpoOverrides, Preset, Switches, TrainConfig};
-
-/// Load the library of `common`'s input folder and everything else the
-/// environment needs, with the recipe's `[sample-stf]` settings.
-pub fn setup(common: &Common, cfg: &TrainConfig) -> Result<Setup> {
-    Setup::load(
-        common.input_dir(),
-        common.args.data_root.as_deref(),
-        cfg,
-        &common.settings("sample-stf")?,
-    )
-}
-
-fn write_metrics(out: &Path, rows: &[MetricRow], resolved: &str, dataset: &str) -> Result<()> {
+/// Stage `train_metrics.parquet` of `rows` into `o`.
+fn stage_metrics(o: &mut Outputs, rows: &[MetricRow], resolved: &str, dataset: &str) -> Result<()> {
     let meta = table::Meta::new(dataset, resolved);
-    let mut o = super::Outputs::new(out)?;
     o.parquet(
         "train_metrics.parquet",
         &table::train::batch(rows)?,
         &meta.table("train_metrics"),
-    )?;
-    o.commit()
+    )
 }
 
 /// Run the stage.
@@ -129,7 +116,9 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
         if row.iteration % cfg.checkpoint_every == 0 || t.done() {
             t.checkpoint(&out)?;
             if root {
-                write_metrics(&out, t.metrics(), &resolved, &dataset)?;
+                let mut o = Outputs::new(&out)?;
+                stage_metrics(&mut o, t.metrics(), &resolved, &dataset)?;
+                o.commit()?;
             }
         }
     }
@@ -137,10 +126,13 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
     if !root {
         return Ok(());
     }
-    t.agent().save(&out.join("policy.safetensors"))?;
+    // one commit: the policy, its metrics and its metadata appear together
     let meta = t.policy_meta(&stf_cfg, he_dir);
-    write_metrics(&out, t.metrics(), &resolved, &dataset)?;
-    let mut o = super::Outputs::new(&out)?;
+    let mut o = Outputs::new(&out)?;
+    o.with_staged("policy.safetensors", |staged, path| {
+        t.agent().stage(staged, path)
+    })?;
+    stage_metrics(&mut o, t.metrics(), &resolved, &dataset)?;
     o.text("policy.meta.json", &serde_json::to_string_pretty(&meta)?)?;
     o.text("train.resolved.toml", &resolved)?;
     o.commit()?;

@@ -9,11 +9,51 @@ use arrow::record_batch::RecordBatch;
 use polars::prelude::{col, len, DataFrame, IntoLazy, NamedFrom, Series, SortMultipleOptions};
 use std::sync::Arc;
 
+/// An evaluation metric: the `metric` column of the eval tables.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Metric {
+    /// Success rate from the skill's own frames ("sr").
+    Sr,
+    /// Transition success rate from another skill's frames ("tsr").
+    Tsr,
+    /// epsilon-neighbourhood success rate ("nsr").
+    Nsr,
+    /// Mean SM reward per step, no success rule ("nr").
+    Nr,
+}
+
+impl Metric {
+    /// Every metric.
+    pub const ALL: [Metric; 4] = [Metric::Sr, Metric::Tsr, Metric::Nsr, Metric::Nr];
+
+    /// The name in the tables and settings: "sr", "tsr", "nsr" or "nr".
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Metric::Sr => "sr",
+            Metric::Tsr => "tsr",
+            Metric::Nsr => "nsr",
+            Metric::Nr => "nr",
+        }
+    }
+
+    /// The metric named `name` ([`Metric::as_str`]), if any.
+    pub fn from_name(name: &str) -> Option<Metric> {
+        Metric::ALL.into_iter().find(|m| m.as_str() == name)
+    }
+}
+
+impl std::fmt::Display for Metric {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // pad: the summary's text table gives the metric a width
+        f.pad(self.as_str())
+    }
+}
+
 /// One trial.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrialRow {
-    /// "sr", "tsr", "nsr" or "nr".
-    pub metric: String,
+    /// The cell's metric.
+    pub metric: Metric,
     /// Skill of the start frames.
     pub from: String,
     /// Skill of the condition and the rule.
@@ -33,8 +73,43 @@ pub struct TrialRow {
     pub down_step: Option<u32>,
 }
 
+/// A step at which the summary gives the fraction of trials still
+/// standing, with its column of `eval_summary.parquet`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Standing {
+    /// Policy steps.
+    pub at: u32,
+    /// Column name: `standing_{at}`.
+    pub column: &'static str,
+    /// Column meaning.
+    pub doc: &'static str,
+}
+
+/// [`Standing`] entries of the steps given, names and meanings derived
+/// from the step.
+macro_rules! standing {
+    ($first:literal $(, $at:literal)*) => {
+        [
+            Standing {
+                at: $first,
+                column: concat!("standing_", $first),
+                doc: concat!(
+                    "fraction of the trials still standing after ",
+                    $first,
+                    " policy steps (NaN for nr or shorter trials)"
+                ),
+            },
+            $(Standing {
+                at: $at,
+                column: concat!("standing_", $at),
+                doc: concat!("the same after ", $at, " steps"),
+            },)*
+        ]
+    };
+}
+
 /// Steps at which the summary gives the fraction of trials still standing.
-pub const STANDING_AT: [u32; 4] = [100, 200, 400, 600];
+pub const STANDING_AT: [Standing; 4] = standing!(100, 200, 400, 600);
 
 /// One cell.
 #[derive(Clone, Debug, PartialEq)]
@@ -42,7 +117,7 @@ pub struct SummaryRow {
     /// Method label.
     pub label: String,
     /// Metric.
-    pub metric: String,
+    pub metric: Metric,
     /// Start skill.
     pub from: String,
     /// Target skill.
@@ -62,7 +137,7 @@ pub struct SummaryRow {
     /// Fraction of the trials still standing (root above the rule's
     /// height at every step so far) at each step of [`STANDING_AT`]; NaN for
     /// nr or when the trials are shorter.
-    pub standing: [f64; 4],
+    pub standing: [f64; STANDING_AT.len()],
 }
 
 /// Columns of `eval_trials.parquet`.
@@ -151,16 +226,14 @@ pub fn summary_columns() -> Vec<ColumnSpec> {
             false,
             "95 % Wilson interval, upper end (NaN for nr)",
         ),
-        ColumnSpec::new(
-            "standing_100",
-            Float64,
-            false,
-            "fraction of the trials still standing after 100 policy steps (NaN for nr or shorter trials)",
-        ),
-        ColumnSpec::new("standing_200", Float64, false, "the same after 200 steps"),
-        ColumnSpec::new("standing_400", Float64, false, "the same after 400 steps"),
-        ColumnSpec::new("standing_600", Float64, false, "the same after 600 steps"),
     ]
+    .into_iter()
+    .chain(
+        STANDING_AT
+            .iter()
+            .map(|s| ColumnSpec::new(s.column, Float64, false, s.doc)),
+    )
+    .collect()
 }
 
 /// The trials as a record batch.
@@ -170,7 +243,7 @@ pub fn trials_batch(label: &str, rows: &[TrialRow]) -> Result<RecordBatch> {
     };
     let arrays: Vec<ArrayRef> = vec![
         Arc::new(StringArray::from_iter_values(rows.iter().map(|_| label))),
-        s(&|r| &r.metric),
+        s(&|r| r.metric.as_str()),
         s(&|r| &r.from),
         s(&|r| &r.to),
         Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.trial))),
@@ -199,9 +272,9 @@ pub fn summary_batch(rows: &[SummaryRow]) -> Result<RecordBatch> {
     let fl = |f: &dyn Fn(&SummaryRow) -> f64| -> ArrayRef {
         Arc::new(Float64Array::from_iter_values(rows.iter().map(f)))
     };
-    let arrays: Vec<ArrayRef> = vec![
+    let mut arrays: Vec<ArrayRef> = vec![
         s(&|r| &r.label),
-        s(&|r| &r.metric),
+        s(&|r| r.metric.as_str()),
         s(&|r| &r.from),
         s(&|r| &r.to),
         Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.trials))),
@@ -214,11 +287,8 @@ pub fn summary_batch(rows: &[SummaryRow]) -> Result<RecordBatch> {
         fl(&|r| r.value),
         fl(&|r| r.lo),
         fl(&|r| r.hi),
-        fl(&|r| r.standing[0]),
-        fl(&|r| r.standing[1]),
-        fl(&|r| r.standing[2]),
-        fl(&|r| r.standing[3]),
     ];
+    arrays.extend((0..STANDING_AT.len()).map(|k| fl(&|r| r.standing[k])));
     Ok(RecordBatch::try_new(schema_of(&summary_columns()), arrays)?)
 }
 
@@ -229,7 +299,7 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
     let df = DataFrame::new(
         rows.len(),
         vec![
-            Series::new("metric".into(), strs(&|r| r.metric.clone())).into(),
+            Series::new("metric".into(), strs(&|r| r.metric.to_string())).into(),
             Series::new("from".into(), strs(&|r| r.from.clone())).into(),
             Series::new("to".into(), strs(&|r| r.to.clone())).into(),
             Series::new(
@@ -269,17 +339,18 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
     let sm = frame_f64s(&g, "sm")?;
     let mut out = Vec::with_capacity(m.len());
     for i in 0..m.len() {
-        let nr = m[i] == "nr";
+        let metric = Metric::from_name(&m[i]).context("eval summary: a metric of no trial")?;
+        let nr = metric == Metric::Nr;
         let (lo, hi) = if nr {
             (f64::NAN, f64::NAN)
         } else {
-            crate::eval::wilson(k[i] as usize, n[i] as usize)
+            crate::stats::wilson(k[i] as usize, n[i] as usize)
         };
         let cell: Vec<&TrialRow> = rows
             .iter()
-            .filter(|r| r.metric == m[i] && r.from == f[i] && r.to == t[i])
+            .filter(|r| r.metric == metric && r.from == f[i] && r.to == t[i])
             .collect();
-        let standing = STANDING_AT.map(|at| {
+        let standing = STANDING_AT.map(|Standing { at, .. }| {
             if nr || cell.is_empty() || cell.iter().any(|r| r.steps < at) {
                 return f64::NAN;
             }
@@ -292,7 +363,7 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
         out.push(SummaryRow {
             standing,
             label: label.to_string(),
-            metric: m[i].clone(),
+            metric,
             from: f[i].clone(),
             to: t[i].clone(),
             trials: n[i],
@@ -313,7 +384,7 @@ pub fn summarise(label: &str, rows: &[TrialRow]) -> Result<Vec<SummaryRow>> {
 /// A plain text table of a summary.
 pub fn render(rows: &[SummaryRow]) -> String {
     let mut s = format!(
-        "{:<10} {:<6} {:<16} {:<16} {:>7} {:>6} {:>9} {:>17}  {}\n",
+        "{:<10} {:<6} {:<16} {:<16} {:>7} {:>6} {:>9} {:>17}  standing at {}\n",
         "method",
         "metric",
         "from",
@@ -322,10 +393,10 @@ pub fn render(rows: &[SummaryRow]) -> String {
         "steps",
         "value",
         "95% interval",
-        "standing at 100/200/400/600"
+        STANDING_AT.map(|s| s.at.to_string()).join("/")
     );
     for r in rows {
-        let (v, ci) = if r.metric == "nr" {
+        let (v, ci) = if r.metric == Metric::Nr {
             (format!("{:.3}", r.value), String::new())
         } else {
             (
@@ -362,7 +433,7 @@ pub fn summary_frame(path: &std::path::Path) -> Result<DataFrame> {
     // without them still read
     for c in summary_columns()
         .into_iter()
-        .filter(|c| !c.name.starts_with("standing_") && c.name != "trial_steps")
+        .filter(|c| !STANDING_AT.iter().any(|s| s.column == c.name) && c.name != "trial_steps")
     {
         if df.column(c.name).is_err() {
             anyhow::bail!(
@@ -373,4 +444,41 @@ pub fn summary_frame(path: &std::path::Path) -> Result<DataFrame> {
         }
     }
     Ok(df)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn metrics_are_named_as_in_the_tables_and_pad_in_text() {
+        for m in Metric::ALL {
+            assert_eq!(Metric::from_name(m.as_str()), Some(m));
+        }
+        assert_eq!(Metric::from_name("xsr"), None);
+        assert_eq!(
+            format!("{:<6}|{:>4}", Metric::Nr, Metric::Sr),
+            "nr    |  sr"
+        );
+    }
+
+    #[test]
+    fn standing_columns_follow_their_steps() {
+        let names: Vec<&str> = STANDING_AT.iter().map(|s| s.column).collect();
+        assert_eq!(
+            names,
+            [
+                "standing_100",
+                "standing_200",
+                "standing_400",
+                "standing_600"
+            ]
+        );
+        let cols = summary_columns();
+        assert_eq!(
+            &cols[cols.len() - STANDING_AT.len()..][0].name,
+            &"standing_100"
+        );
+        assert!(render(&[]).ends_with("standing at 100/200/400/600\n"));
+    }
 }

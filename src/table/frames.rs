@@ -12,32 +12,119 @@ use arrow::datatypes::DataType;
 use arrow::record_batch::RecordBatch;
 use std::sync::Arc;
 
+/// How many values a state column holds per frame.
+#[derive(Clone, Copy, Debug)]
+enum Width {
+    /// This many (a `FixedSizeList` column).
+    Fixed(usize),
+    /// 3 per joint (a `List` column).
+    Joints,
+    /// 3 per body (a `List` column).
+    Bodies,
+    /// This many per object (a `List` column).
+    PerObject(usize),
+}
+
+impl Width {
+    /// Values per frame of `f`.
+    fn of(self, f: &ClipFrames) -> usize {
+        match self {
+            Width::Fixed(n) => n,
+            Width::Joints => f.n_joints * 3,
+            Width::Bodies => f.n_bodies * 3,
+            Width::PerObject(k) => k * f.n_objects,
+        }
+    }
+
+    fn dtype(self) -> DataType {
+        match self {
+            Width::Fixed(n) => f32_fixed(n as i32),
+            _ => f32_list(),
+        }
+    }
+
+    fn rows(self) -> F32Rows {
+        match self {
+            Width::Fixed(n) => F32Rows::fixed(n),
+            _ => F32Rows::list(),
+        }
+    }
+}
+
+/// A float state column: named after its field of [`ClipFrames`], with
+/// its width per frame and meaning.
+struct StateColumn {
+    name: &'static str,
+    width: Width,
+    doc: &'static str,
+    get: fn(&ClipFrames) -> &Vec<f32>,
+    get_mut: fn(&mut ClipFrames) -> &mut Vec<f32>,
+}
+
+macro_rules! state_columns {
+    ($($field:ident: $width:expr, $doc:expr;)*) => {
+        [$(StateColumn {
+            name: stringify!($field),
+            width: $width,
+            doc: $doc,
+            get: |f| &f.$field,
+            get_mut: |f| &mut f.$field,
+        }),*]
+    };
+}
+
+/// The float state columns, in table order (after `valid`).
+#[rustfmt::skip]
+const STATE_COLUMNS: [StateColumn; 14] = state_columns! {
+    root_pos: Width::Fixed(3), "root (pelvis) world position, m; tensor cols 0:3";
+    root_rot: Width::Fixed(4), "root world rotation, unit quaternion (x, y, z, w), sign-smoothed along the clip";
+    root_rot_expmap: Width::Fixed(3), "root world rotation as stored, exp-map, rad; tensor cols 3:6";
+    root_linvel: Width::Fixed(3), "root linear velocity, m/s: backward difference x fps, 0 at frame 0";
+    root_angvel: Width::Fixed(3), "root angular velocity, rad/s: expmap(conj(q[i-1]) q[i]) x fps (body frame; metadata skillaug.angvel_frame)";
+    joint_rot: Width::Joints, "[J*3] joint rotations, exp-map of each non-root body's local rotation, rad; tensor cols 9:9+3J";
+    joint_vel: Width::Joints, "[J*3] joint exp-map velocities, rad/s: backward difference x fps";
+    body_pos: Width::Bodies, "[B*3] body world positions in body order, m; tensor cols 165:324 (D337) or 189:372 (ParaHome)";
+    body_vel: Width::Bodies, "[B*3] body linear velocities, m/s: backward difference x fps";
+    obj_pos: Width::PerObject(3), "[O*3] object world positions, m";
+    obj_rot: Width::PerObject(4), "[O*4] object rotations, unit quaternions (x, y, z, w), sign-smoothed";
+    obj_rot_expmap: Width::PerObject(3), "[O*3] object rotation vectors, rad (BallPlay's stored negation undone)";
+    obj_linvel: Width::PerObject(3), "[O*3] object linear velocities, m/s: backward difference x fps";
+    obj_angvel: Width::PerObject(3), "[O*3] object angular velocities, rad/s (metadata skillaug.obj_angvel)";
+};
+
 /// The documented columns. J = joints, B = bodies (metadata
 /// `skillaug.n_joints`, `skillaug.n_bodies`), O = objects of the clip
 /// (`objects` in clips.parquet). Quaternions are (x, y, z, w).
 pub fn columns() -> Vec<ColumnSpec> {
     use DataType::*;
-    vec![
+    let mut cols = vec![
         ColumnSpec::new("clip_id", UInt32, false, "clip (clips.parquet clip_id)"),
-        ColumnSpec::new("frame", UInt32, false, "frame index within the clip, 0-based"),
+        ColumnSpec::new(
+            "frame",
+            UInt32,
+            false,
+            "frame index within the clip, 0-based",
+        ),
         ColumnSpec::new("time_s", Float32, false, "frame / fps, s"),
-        ColumnSpec::new("valid", Boolean, false, "false for a missing frame (all-zero row); its state columns are null"),
-        ColumnSpec::new("root_pos", f32_fixed(3), true, "root (pelvis) world position, m; tensor cols 0:3"),
-        ColumnSpec::new("root_rot", f32_fixed(4), true, "root world rotation, unit quaternion (x, y, z, w), sign-smoothed along the clip"),
-        ColumnSpec::new("root_rot_expmap", f32_fixed(3), true, "root world rotation as stored, exp-map, rad; tensor cols 3:6"),
-        ColumnSpec::new("root_linvel", f32_fixed(3), true, "root linear velocity, m/s: backward difference x fps, 0 at frame 0"),
-        ColumnSpec::new("root_angvel", f32_fixed(3), true, "root angular velocity, rad/s: expmap(conj(q[i-1]) q[i]) x fps (body frame; metadata skillaug.angvel_frame)"),
-        ColumnSpec::new("joint_rot", f32_list(), true, "[J*3] joint rotations, exp-map of each non-root body's local rotation, rad; tensor cols 9:9+3J"),
-        ColumnSpec::new("joint_vel", f32_list(), true, "[J*3] joint exp-map velocities, rad/s: backward difference x fps"),
-        ColumnSpec::new("body_pos", f32_list(), true, "[B*3] body world positions in body order, m; tensor cols 165:324 (D337) or 189:372 (ParaHome)"),
-        ColumnSpec::new("body_vel", f32_list(), true, "[B*3] body linear velocities, m/s: backward difference x fps"),
-        ColumnSpec::new("obj_pos", f32_list(), true, "[O*3] object world positions, m"),
-        ColumnSpec::new("obj_rot", f32_list(), true, "[O*4] object rotations, unit quaternions (x, y, z, w), sign-smoothed"),
-        ColumnSpec::new("obj_rot_expmap", f32_list(), true, "[O*3] object rotation vectors, rad (BallPlay's stored negation undone)"),
-        ColumnSpec::new("obj_linvel", f32_list(), true, "[O*3] object linear velocities, m/s: backward difference x fps"),
-        ColumnSpec::new("obj_angvel", f32_list(), true, "[O*3] object angular velocities, rad/s (metadata skillaug.obj_angvel)"),
-        ColumnSpec::new("contact", Boolean, true, "reference ball/object contact flag: the last tensor column, rounded"),
-    ]
+        ColumnSpec::new(
+            "valid",
+            Boolean,
+            false,
+            "false for a missing frame (all-zero row); its state columns are null",
+        ),
+    ];
+    cols.extend(
+        STATE_COLUMNS
+            .iter()
+            .map(|c| ColumnSpec::new(c.name, c.width.dtype(), true, c.doc)),
+    );
+    cols.push(ColumnSpec::new(
+        "contact",
+        Boolean,
+        true,
+        "reference ball/object contact flag: the last tensor column, rounded",
+    ));
+    cols
 }
 
 /// One clip's frames with its id and frame rate.
@@ -58,17 +145,9 @@ pub fn batch(clips: &[ClipInput<'_>]) -> Result<RecordBatch> {
     let mut time = Vec::with_capacity(n);
     let mut valid = Vec::with_capacity(n);
     let mut contact = Vec::with_capacity(n);
-    let mut cols: Vec<F32Rows> = vec![
-        F32Rows::fixed(3),
-        F32Rows::fixed(4),
-        F32Rows::fixed(3),
-        F32Rows::fixed(3),
-        F32Rows::fixed(3),
-    ];
-    cols.extend((0..9).map(|_| F32Rows::list()));
+    let mut cols: Vec<F32Rows> = STATE_COLUMNS.iter().map(|c| c.width.rows()).collect();
     for c in clips {
         let f = c.frames;
-        let (j, b, o) = (f.n_joints * 3, f.n_bodies * 3, f.n_objects);
         for i in 0..f.frames {
             clip_id.push(c.clip_id);
             frame.push(i as u32);
@@ -76,23 +155,8 @@ pub fn batch(clips: &[ClipInput<'_>]) -> Result<RecordBatch> {
             let ok = f.valid[i];
             valid.push(ok);
             contact.push(ok.then_some(f.contact[i]));
-            let parts: [(&Vec<f32>, usize); 14] = [
-                (&f.root_pos, 3),
-                (&f.root_rot, 4),
-                (&f.root_rot_expmap, 3),
-                (&f.root_linvel, 3),
-                (&f.root_angvel, 3),
-                (&f.joint_rot, j),
-                (&f.joint_vel, j),
-                (&f.body_pos, b),
-                (&f.body_vel, b),
-                (&f.obj_pos, 3 * o),
-                (&f.obj_rot, 4 * o),
-                (&f.obj_rot_expmap, 3 * o),
-                (&f.obj_linvel, 3 * o),
-                (&f.obj_angvel, 3 * o),
-            ];
-            for (col, (src, w)) in cols.iter_mut().zip(parts) {
+            for (col, sc) in cols.iter_mut().zip(&STATE_COLUMNS) {
+                let (src, w) = ((sc.get)(f), sc.width.of(f));
                 col.push(ok.then(|| &src[i * w..(i + 1) * w]));
             }
         }
@@ -131,22 +195,6 @@ pub fn read(path: &std::path::Path, clips: &[super::clips::ClipRow]) -> Result<V
             }
         })
         .collect();
-    const NAMES: [&str; 14] = [
-        "root_pos",
-        "root_rot",
-        "root_rot_expmap",
-        "root_linvel",
-        "root_angvel",
-        "joint_rot",
-        "joint_vel",
-        "body_pos",
-        "body_vel",
-        "obj_pos",
-        "obj_rot",
-        "obj_rot_expmap",
-        "obj_linvel",
-        "obj_angvel",
-    ];
     for b in &t.batches {
         let ids = col(b, "clip_id", path)?
             .as_primitive::<UInt32Type>()
@@ -158,9 +206,9 @@ pub fn read(path: &std::path::Path, clips: &[super::clips::ClipRow]) -> Result<V
             .to_vec();
         let valid = col(b, "valid", path)?.as_boolean().clone();
         let contact = col(b, "contact", path)?.as_boolean().clone();
-        let arrays = NAMES
+        let arrays = STATE_COLUMNS
             .iter()
-            .map(|n| col(b, n, path).cloned())
+            .map(|sc| col(b, sc.name, path).cloned())
             .collect::<Result<Vec<_>>>()?;
         for r in 0..b.num_rows() {
             let c = out.get_mut(ids[r] as usize).ok_or_else(|| {
@@ -179,48 +227,15 @@ pub fn read(path: &std::path::Path, clips: &[super::clips::ClipRow]) -> Result<V
                 );
             }
             let ok = valid.value(r);
-            let (j, bd, o) = (c.n_joints * 3, c.n_bodies * 3, c.n_objects);
-            let widths = [
-                3,
-                4,
-                3,
-                3,
-                3,
-                j,
-                j,
-                bd,
-                bd,
-                3 * o,
-                4 * o,
-                3 * o,
-                3 * o,
-                3 * o,
-            ];
-            let dests: [&mut Vec<f32>; 14] = [
-                &mut c.root_pos,
-                &mut c.root_rot,
-                &mut c.root_rot_expmap,
-                &mut c.root_linvel,
-                &mut c.root_angvel,
-                &mut c.joint_rot,
-                &mut c.joint_vel,
-                &mut c.body_pos,
-                &mut c.body_vel,
-                &mut c.obj_pos,
-                &mut c.obj_rot,
-                &mut c.obj_rot_expmap,
-                &mut c.obj_linvel,
-                &mut c.obj_angvel,
-            ];
-            for ((dest, a), (w, name)) in
-                dests.into_iter().zip(&arrays).zip(widths.iter().zip(NAMES))
-            {
+            for (sc, a) in STATE_COLUMNS.iter().zip(&arrays) {
+                let (w, name) = (sc.width.of(c), sc.name);
+                let dest = (sc.get_mut)(c);
                 match f32_row(a, r) {
-                    Some(v) if ok && v.len() == *w => dest.extend_from_slice(&v),
-                    None if !ok => dest.extend(std::iter::repeat_n(0.0, *w)),
+                    Some(v) if ok && v.len() == w => dest.extend_from_slice(&v),
+                    None if !ok => dest.extend(std::iter::repeat_n(0.0, w)),
                     other => bail!(
                         "{}: row {r} (clip {}, frame {}): column `{name}` has {} values, expected {}",
-                        path.display(), ids[r], frame[r], other.map_or(0, |v| v.len()), if ok { *w } else { 0 }
+                        path.display(), ids[r], frame[r], other.map_or(0, |v| v.len()), if ok { w } else { 0 }
                     ),
                 }
             }

@@ -69,17 +69,32 @@ pub fn loss_batch(rows: &[LossRow]) -> Result<RecordBatch> {
     Ok(RecordBatch::try_new(schema_of(&loss_columns()), arrays)?)
 }
 
-/// Embeddings as a batch: `(clip_id, frame, skill, h)` rows.
-pub fn embedding_batch(rows: &[(u32, u32, String, [f32; 3])]) -> Result<RecordBatch> {
+/// One row of `he_embeddings.parquet`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EmbeddingRow {
+    /// Clip.
+    pub clip_id: u32,
+    /// Frame t.
+    pub frame: u32,
+    /// Skill of the clip.
+    pub skill: String,
+    /// Embedding h_t.
+    pub h: [f32; 3],
+}
+
+/// Embeddings as a batch.
+pub fn embedding_batch(rows: &[EmbeddingRow]) -> Result<RecordBatch> {
     let mut h = F32Rows::fixed(3);
     for r in rows {
-        h.push(Some(&r.3));
+        h.push(Some(&r.h));
     }
     let arrays: Vec<ArrayRef> = vec![
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.0))),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.1))),
+        Arc::new(UInt32Array::from_iter_values(
+            rows.iter().map(|r| r.clip_id),
+        )),
+        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.frame))),
         Arc::new(StringArray::from_iter_values(
-            rows.iter().map(|r| r.2.as_str()),
+            rows.iter().map(|r| r.skill.as_str()),
         )),
         h.finish(),
     ];

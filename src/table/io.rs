@@ -1,9 +1,13 @@
 //! Atomic writes and reads of the tables.
 //!
 //! Every output is first written to a hidden temporary file in its target
-//! folder and renamed into place only once every output of the stage has been
-//! written ([`Staged::commit`]). A failure before that leaves the folder as it
-//! was: nothing half-written, nothing already there lost.
+//! folder, synced, and renamed into place only once every output of the
+//! stage has been written ([`Staged::commit`]; [`Outputs`] for the files of
+//! one folder). A failure before that leaves the folder as it was: nothing
+//! half-written, nothing already there lost. A folder that must change as
+//! a whole (the trainer's checkpoint) is staged as a fresh folder and
+//! swapped in ([`StagedDir`]); [`MadeDirs`] removes the folders made for
+//! outputs that were then not written.
 
 use anyhow::{anyhow, bail, Context, Result};
 use arrow::record_batch::RecordBatch;
@@ -119,13 +123,224 @@ impl Staged {
                 }
             };
             set_mode(tmp.path(), mode)?;
-            tmp.as_file().sync_all()?;
+            // By path, not `tmp.as_file()`: a writer that renamed its own
+            // file onto the temporary path (candle's safetensors writer)
+            // left that handle on the replaced file.
+            std::fs::File::open(tmp.path())
+                .and_then(|f| f.sync_all())
+                .with_context(|| format!("cannot sync the output for {}", dest.display()))?;
         }
+        let dirs: Vec<PathBuf> = modes.iter().map(|(d, _)| d.to_path_buf()).collect();
         for (tmp, dest) in self.files {
             tmp.persist(&dest)
                 .map_err(|e| anyhow!("cannot move output into {}: {}", dest.display(), e.error))?;
         }
+        for dir in &dirs {
+            sync_dir(dir);
+        }
         Ok(())
+    }
+}
+
+/// The outputs of one stage in its run folder, committed all at once. The
+/// folder itself is made (and removed again when the stage fails and
+/// leaves it empty) by the stage's [`OutputLock`].
+pub struct Outputs {
+    dir: PathBuf,
+    staged: Staged,
+}
+
+impl Outputs {
+    /// Stage outputs into `dir` (created if missing).
+    pub fn new(dir: &Path) -> Result<Outputs> {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create the output folder {}", dir.display()))?;
+        Ok(Outputs {
+            dir: dir.to_path_buf(),
+            staged: Staged::new(),
+        })
+    }
+
+    /// Stage `<dir>/<name>` as Parquet.
+    pub fn parquet(
+        &mut self,
+        name: &str,
+        batch: &RecordBatch,
+        meta: &[(String, String)],
+    ) -> Result<()> {
+        let dest = self.dir.join(name);
+        self.staged.parquet(&dest, batch, meta)
+    }
+
+    /// Stage `<dir>/<name>`, written by `write` to the temporary path it gets.
+    pub fn with_path(&mut self, name: &str, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+        let dest = self.dir.join(name);
+        self.staged.with_path(&dest, write)
+    }
+
+    /// Stage `<dir>/<name>` (and the files beside it that go with it) by
+    /// `stage`, a writer that stages into a [`Staged`] set itself (such as
+    /// [`crate::rl::Agent::stage`]); it gets the set and the destination.
+    pub fn with_staged(
+        &mut self,
+        name: &str,
+        stage: impl FnOnce(&mut Staged, &Path) -> Result<()>,
+    ) -> Result<()> {
+        let dest = self.dir.join(name);
+        stage(&mut self.staged, &dest)
+    }
+
+    /// Stage `<dir>/<name>` as text.
+    pub fn text(&mut self, name: &str, text: &str) -> Result<()> {
+        let dest = self.dir.join(name);
+        self.staged.text(&dest, text)
+    }
+
+    /// Move every staged output into place.
+    pub fn commit(self) -> Result<()> {
+        self.staged.commit()
+    }
+}
+
+/// A folder of outputs replaced as a whole. Its files are staged (as by
+/// [`Staged`]: temporary file, synced, the mode a new file gets) in the
+/// fresh folder `<dest>.tmp/`; [`StagedDir::commit`] moves each to its name
+/// there, syncs that folder, renames the folder `dest` held before to
+/// `<dest>.old`, renames `<dest>.tmp` to `dest`, syncs the parent and only
+/// then removes `<dest>.old`. A reader that finds no `dest` should read
+/// `<dest>.old` (a swap cut short between its two renames). A staged folder
+/// dropped without a commit is removed, and a `<dest>.tmp` left behind by a
+/// killed process is removed by the next [`StagedDir::new`].
+pub struct StagedDir {
+    dest: PathBuf,
+    tmp: PathBuf,
+    staged: Staged,
+    committed: bool,
+}
+
+impl StagedDir {
+    /// Start a new version of folder `dest` (its parent is created if
+    /// missing).
+    ///
+    /// # Errors
+    /// When `<dest>.tmp` cannot be removed or created.
+    pub fn new(dest: &Path) -> Result<StagedDir> {
+        let tmp = with_suffix(dest, ".tmp");
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp)
+                .with_context(|| format!("cannot remove {}", tmp.display()))?;
+        }
+        std::fs::create_dir_all(&tmp)
+            .with_context(|| format!("cannot create {}", tmp.display()))?;
+        Ok(StagedDir {
+            dest: dest.to_path_buf(),
+            tmp,
+            staged: Staged::new(),
+            committed: false,
+        })
+    }
+
+    /// Stage file `name` of the folder holding `bytes`.
+    pub fn bytes(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
+        let dest = self.tmp.join(name);
+        self.staged.bytes(&dest, bytes)
+    }
+
+    /// Stage file `name` of the folder (and the files beside it that go
+    /// with it) by `stage`, as [`Outputs::with_staged`].
+    pub fn with_staged(
+        &mut self,
+        name: &str,
+        stage: impl FnOnce(&mut Staged, &Path) -> Result<()>,
+    ) -> Result<()> {
+        let dest = self.tmp.join(name);
+        stage(&mut self.staged, &dest)
+    }
+
+    /// Put the staged folder in place of `dest` (see [`StagedDir`]).
+    pub fn commit(mut self) -> Result<()> {
+        std::mem::take(&mut self.staged).commit()?;
+        let old = with_suffix(&self.dest, ".old");
+        let at = |p: &Path| format!("cannot write {}", p.display());
+        if self.dest.exists() {
+            if old.exists() {
+                std::fs::remove_dir_all(&old).with_context(|| at(&old))?;
+            }
+            std::fs::rename(&self.dest, &old).with_context(|| at(&old))?;
+        }
+        std::fs::rename(&self.tmp, &self.dest).with_context(|| at(&self.dest))?;
+        self.committed = true;
+        sync_dir(folder_of(&self.dest));
+        if old.exists() {
+            std::fs::remove_dir_all(&old).with_context(|| at(&old))?;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for StagedDir {
+    fn drop(&mut self) {
+        if !self.committed {
+            drop(std::mem::take(&mut self.staged));
+            let _ = std::fs::remove_dir_all(&self.tmp);
+        }
+    }
+}
+
+/// `path` with `suffix` appended to its last component.
+fn with_suffix(path: &Path, suffix: &str) -> PathBuf {
+    let mut s = path.as_os_str().to_os_string();
+    s.push(suffix);
+    PathBuf::from(s)
+}
+
+/// Folders made for outputs ([`MadeDirs::dir`]), to be removed again when
+/// the outputs are not written after all ([`MadeDirs::remove`]).
+#[derive(Default)]
+pub struct MadeDirs {
+    made: Vec<PathBuf>,
+}
+
+impl MadeDirs {
+    /// Nothing made yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Create folder `dir` and its missing parents, noting each one made.
+    ///
+    /// # Errors
+    /// When a folder cannot be created.
+    pub fn dir(&mut self, dir: &Path) -> Result<()> {
+        let mut missing = Vec::new();
+        let mut d = Some(dir);
+        while let Some(p) = d.filter(|p| !p.as_os_str().is_empty() && !p.exists()) {
+            missing.push(p.to_path_buf());
+            d = p.parent();
+        }
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create the output folder {}", dir.display()))?;
+        self.made.extend(missing.into_iter().rev());
+        Ok(())
+    }
+
+    /// [`MadeDirs::dir`] of the folder of file `path`.
+    ///
+    /// # Errors
+    /// As [`MadeDirs::dir`].
+    pub fn parent_of(&mut self, path: &Path) -> Result<()> {
+        match path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            Some(dir) => self.dir(dir),
+            None => Ok(()),
+        }
+    }
+
+    /// Remove the folders made, deepest first, each only if empty (call it
+    /// once the staged outputs that were to go into them are dropped).
+    pub fn remove(self) {
+        for dir in self.made.iter().rev() {
+            let _ = std::fs::remove_dir(dir);
+        }
     }
 }
 
@@ -156,6 +371,18 @@ fn fresh_file_mode(dir: &Path) -> Result<u32> {
         let _ = dir;
         Ok(0o644)
     }
+}
+
+/// Sync folder `dir`, so that the renames into it last (unix; best
+/// effort: not every file system syncs a folder, and the files in it are
+/// in place whether or not it does).
+fn sync_dir(dir: &Path) {
+    #[cfg(unix)]
+    if let Ok(f) = std::fs::File::open(dir) {
+        let _ = f.sync_all();
+    }
+    #[cfg(not(unix))]
+    let _ = dir;
 }
 
 /// Set the permission bits of `path` (a no-op off unix).
@@ -358,5 +585,82 @@ impl Drop for OutputLock {
         if self.created {
             let _ = std::fs::remove_dir(&self.dir);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn a_staged_folder_replaces_the_old_one_whole() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dest = tmp.path().join("ckpt");
+        let mut d = StagedDir::new(&dest).unwrap();
+        d.bytes("a.bin", b"one").unwrap();
+        d.bytes("stale.bin", b"x").unwrap();
+        d.commit().unwrap();
+        assert_eq!(names(&dest), ["a.bin", "stale.bin"]);
+        // a writer that renames its own file onto the temporary path
+        let mut d = StagedDir::new(&dest).unwrap();
+        d.with_staged("b.bin", |staged, path| {
+            staged.with_path(path, |p| {
+                let own = p.with_extension("own");
+                std::fs::write(&own, b"two")?;
+                std::fs::rename(&own, p)?;
+                Ok(())
+            })
+        })
+        .unwrap();
+        d.bytes("a.bin", b"three").unwrap();
+        d.commit().unwrap();
+        assert_eq!(names(&dest), ["a.bin", "b.bin"]);
+        assert_eq!(std::fs::read(dest.join("a.bin")).unwrap(), b"three");
+        assert_eq!(std::fs::read(dest.join("b.bin")).unwrap(), b"two");
+        assert_eq!(names(tmp.path()), ["ckpt"]);
+    }
+
+    #[test]
+    fn a_staged_folder_dropped_or_left_by_a_crash_goes_away() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dest = tmp.path().join("ckpt");
+        let mut d = StagedDir::new(&dest).unwrap();
+        d.bytes("a.bin", b"one").unwrap();
+        d.commit().unwrap();
+        let mut d = StagedDir::new(&dest).unwrap();
+        d.bytes("a.bin", b"two").unwrap();
+        drop(d);
+        assert_eq!(names(tmp.path()), ["ckpt"]);
+        assert_eq!(std::fs::read(dest.join("a.bin")).unwrap(), b"one");
+        // what a killed process leaves behind
+        std::fs::create_dir(tmp.path().join("ckpt.tmp")).unwrap();
+        std::fs::write(tmp.path().join("ckpt.tmp/junk"), b"j").unwrap();
+        let d = StagedDir::new(&dest).unwrap();
+        assert!(names(&tmp.path().join("ckpt.tmp")).is_empty());
+        d.commit().unwrap();
+        assert!(names(&dest).is_empty());
+        assert_eq!(names(tmp.path()), ["ckpt"]);
+    }
+
+    #[test]
+    fn folders_made_for_outputs_not_written_are_removed() {
+        let tmp = tempfile::tempdir().unwrap();
+        std::fs::create_dir(tmp.path().join("kept")).unwrap();
+        let mut made = MadeDirs::new();
+        made.dir(&tmp.path().join("kept/a/b")).unwrap();
+        made.parent_of(&tmp.path().join("c/d/file.glb")).unwrap();
+        assert!(tmp.path().join("c/d").is_dir());
+        made.remove();
+        assert_eq!(names(tmp.path()), ["kept"]);
+        assert!(names(&tmp.path().join("kept")).is_empty());
     }
 }

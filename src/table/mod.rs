@@ -13,6 +13,7 @@ pub mod columns;
 pub mod eval;
 pub mod frames;
 pub mod he;
+pub mod inspect;
 pub mod io;
 pub mod read_util;
 pub mod rollout;

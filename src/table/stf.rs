@@ -2,7 +2,8 @@
 //! Field (paper Sections 4.3-4.5, Algorithm 1; algorithm in
 //! [`crate::augment::stf`]), one row per (trajectory, step), so that a user
 //! can inspect and plot what the trainer sees. Also the reader of the
-//! optional ATS rewards table (`clip_id`, `frame`, `mean_reward`).
+//! optional ATS rewards table (`clip_id`, `frame`, `mean_reward`) and its
+//! check against the clips of a run.
 
 use super::columns::F32Rows;
 use super::read_util::col;
@@ -211,6 +212,44 @@ pub fn read_rewards(path: &Path) -> Result<Vec<(u32, u32, f64)>> {
         }
     }
     Ok(out)
+}
+
+/// Check the rows of an ATS rewards table ([`read_rewards`] of `path`)
+/// against the clips of `lib`: every clip id a clip of `lib`, every frame
+/// inside its clip, at most one row per (clip, frame).
+///
+/// # Errors
+/// The first row that breaks one of those rules (the message names `path`
+/// and the row).
+pub fn check_rewards(
+    path: &Path,
+    rows: &[(u32, u32, f64)],
+    lib: &crate::motion::MotionLib,
+) -> Result<()> {
+    let mut seen = std::collections::BTreeSet::new();
+    for (i, (c, f, _)) in rows.iter().enumerate() {
+        let Some(cf) = lib.frames.get(*c as usize) else {
+            bail!(
+                "{}: row {i}: clip_id {c} is not a clip of this run ({} clips)",
+                path.display(),
+                lib.clips.len()
+            );
+        };
+        if *f as usize >= cf.frames {
+            bail!(
+                "{}: row {i}: frame {f} is outside clip {c} ({} frames)",
+                path.display(),
+                cf.frames
+            );
+        }
+        if !seen.insert((*c, *f)) {
+            bail!(
+                "{}: row {i}: a second row for clip {c}, frame {f}",
+                path.display()
+            );
+        }
+    }
+    Ok(())
 }
 
 /// A trajectory of `stf_samples.parquet` as the viewer draws it.

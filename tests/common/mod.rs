@@ -294,20 +294,19 @@ pub fn sample_masked_stf(from: &str) {
     ]);
 }
 
-/// The stage context of a library call on run folder `run` writing to
-/// `out`: no recipe, no overrides, seed 0, the shipped data root.
-pub fn common_for(run: &Path, out: PathBuf) -> skillaug::stage::Common {
-    skillaug::stage::Common::new(skillaug::cli::StageArgs {
-        out,
-        dataset: None,
-        from: Some(run.to_path_buf()),
-        data_root: Some(data_root()),
-        recipe: None,
-        set: Vec::new(),
-        seed: 0,
-        threads: None,
-        quiet: true,
-    })
+/// The environment set-up of `cfg` on run folder `run` as `skillaug train
+/// --from RUN` builds it without a recipe or overrides: default
+/// `[sample-stf]` settings, the shipped data root.
+pub fn setup_for(
+    run: &Path,
+    cfg: &skillaug::rl::config::TrainConfig,
+) -> skillaug::rl::trainer::Setup {
+    skillaug::rl::trainer::Setup::load(
+        run,
+        Some(&data_root()),
+        cfg,
+        &skillaug::augment::settings::StfConfig::default(),
+    )
     .unwrap()
 }
 
