@@ -127,7 +127,9 @@ pub struct InspectArgs {
 /// `skillaug schema`.
 #[derive(Debug, Args)]
 pub struct SchemaArgs {
-    /// Table name (clips, frames).
+    /// Table name: clips, frames, stg_edges, stg_summary, stf_samples,
+    /// train_metrics, he_loss, he_embeddings, eval_trials, eval_summary or
+    /// eval_rollouts.
     #[arg(value_parser = TableName, hide_possible_values = true)]
     pub name: String,
 }
@@ -183,15 +185,6 @@ pub enum Bench {
     Sim,
     /// Whole PPO iterations: samples/s and the simulation-only bound.
     Train,
-}
-
-/// The length unit of `--units`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum UnitsArg {
-    /// Metres.
-    M,
-    /// Centimetres.
-    Cm,
 }
 
 /// `skillaug bench`.
@@ -372,8 +365,8 @@ pub struct ExportArgs {
     #[arg(long, value_name = "DIR")]
     pub bvh: Option<PathBuf>,
     /// Length unit of the BVH offsets and root positions.
-    #[arg(long, value_enum, default_value_t = UnitsArg::Cm, requires = "bvh")]
-    pub units: UnitsArg,
+    #[arg(long, value_enum, default_value_t = crate::export::bvh::Units::Centimetres, requires = "bvh")]
+    pub units: crate::export::bvh::Units,
     /// Write one glTF binary file (.glb) with one animation per clip, trajectory or trial.
     #[arg(long, value_name = "FILE")]
     pub gltf: Option<PathBuf>,

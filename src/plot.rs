@@ -113,6 +113,12 @@ fn render(
     draw: impl FnOnce(&DrawingArea<BitMapBackend, Shift>) -> Result<()>,
 ) -> Result<()> {
     font()?;
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        // as `view` does: a missing folder is made, not reported as a
+        // failure to create the temporary file inside it
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create the folder of {}", path.display()))?;
+    }
     let mut px = vec![255u8; (W * H * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut px, (W, H)).into_drawing_area();

@@ -35,12 +35,17 @@
 //! * `serde-pickle` cannot resolve torch's persistent ids (`BINPERSID`) nor
 //!   evaluate `REDUCE` of `torch._utils._rebuild_tensor_v2`, which is exactly
 //!   what a tensor pickle consists of.
-//! * candle's pickle stack (`candle_core::pickle::Stack`, candle-core 0.11,
-//!   already a dependency) does parse tensor pickles, but it is unsafe on
-//!   malformed or hostile files, and a clip file is user input. Tried on
-//!   candle-core 0.11.1 (the stress cases of this module's tests):
-//!   `_rebuild_tensor_v2` called with a 2-tuple panics in
-//!   `Object::into_tensor_info` (an unchecked `Vec::remove`); memo
+//! * candle's `.pt` readers (`read_pth_tensor_info`, `PthTensors`, candle-core
+//!   0.11, already a dependency) return the tensors of a dict (a state dict)
+//!   and nothing for a bare `torch.save(tensor)`, which is what every clip
+//!   is; only its lower-level pickle stack (`candle_core::pickle::Stack`)
+//!   could be used, and that is unsafe on malformed or hostile files, and a
+//!   clip file is user input. Tried on candle-core 0.11.1 with a scratch
+//!   program (the stress cases of this module's tests, not kept in the
+//!   repository): `_rebuild_tensor_v2` called with a 2-tuple panics in
+//!   `rebuild_args` (an unchecked `Vec::remove`, reached from
+//!   `Object::into_tensor_info`; a panic could be caught, the next two
+//!   cannot); memo
 //!   references copy the memoised object (`memo_get` clones), so a 286-byte
 //!   pickle that re-memoises `(m, m)` 40 times asks for 2^40 objects and
 //!   aborts on allocation failure; 200,000 nested `TUPLE1` (a 200 kB pickle)
@@ -1643,7 +1648,7 @@ mod tests {
 
     #[test]
     fn memo_doubling_stays_linear() {
-        // memo[0] = (); 40 times memo[0] = (memo[0], memo[0]): 285 bytes
+        // memo[0] = (); 40 times memo[0] = (memo[0], memo[0]): 286 bytes
         // that describe 2^40 leaves when references are copied.
         let mut p = vec![0x80, 2, b')', b'q', 0];
         for _ in 0..40 {

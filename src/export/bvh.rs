@@ -61,12 +61,14 @@ use anyhow::{bail, Result};
 use std::f64::consts::PI;
 use std::fmt::Write;
 
-/// Length unit of a BVH file's offsets and root positions.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Length unit of a BVH file's offsets and root positions (`--units m|cm`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Units {
-    /// Metres (the simulator's unit).
+    /// Metres.
+    #[value(name = "m")]
     Metres,
     /// Centimetres.
+    #[value(name = "cm")]
     Centimetres,
 }
 

@@ -1,5 +1,6 @@
-//! Networks in candle: the only code (with `rl/`, the PPO core) that touches
-//! candle. Layers are built with seeded, PyTorch-style initial weights
+//! Networks in candle: the layers, the history encoder and its
+//! pre-training (`rl/` holds the PPO core; the evaluator and the ONNX export
+//! load what these build). Layers are built with seeded, PyTorch-style initial weights
 //! (uniform in +-1/sqrt(fan_in), biases too, unless [`MlpInit`] says
 //! otherwise), because candle's own
 //! initialisers draw from an unseeded generator and start far larger

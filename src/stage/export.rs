@@ -49,10 +49,7 @@ fn export(a: &ExportArgs, made: &mut MadeDirs) -> Result<()> {
         let Some(from) = &a.from else {
             bail!("export --bvh/--gltf needs --from RUN (a run folder with clips.parquet)");
         };
-        let units = match a.units {
-            crate::cli::UnitsArg::M => Units::Metres,
-            crate::cli::UnitsArg::Cm => Units::Centimetres,
-        };
+        let units: Units = a.units;
         let lib = crate::table::load_library(from)?;
         let root = crate::dataset::data_root(a.data_root.as_deref())?;
         let model = Model::for_skeleton(&root, lib.skeleton)?;

@@ -9,7 +9,7 @@
 use super::Common;
 use crate::cli::StageArgs;
 use crate::pipeline::{hashed_plan, policies, policy_name, Lock, RunConfig, Todo};
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 
 /// Run the experiment of `recipe` into `args.out`.
@@ -89,7 +89,9 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
                 let mut sw = switches[policy.unwrap().0].clone();
                 sw.resume = resume && dir.join("checkpoint/state.json").is_file();
                 if !sw.resume && dir.exists() {
-                    std::fs::remove_dir_all(&dir)?;
+                    std::fs::remove_dir_all(&dir).with_context(|| {
+                        format!("cannot remove {} for a fresh training", dir.display())
+                    })?;
                 }
                 let mut a = stage_args(dir, Some(data.clone()));
                 skill_set(&mut a);
@@ -119,7 +121,10 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
     if !quiet {
         println!("run: {ran} step(s) ran; lock {}", lock_path.display());
         if ran == 0 && out.join("report.md").is_file() {
-            print!("{}", std::fs::read_to_string(out.join("report.md"))?);
+            let report = out.join("report.md");
+            let text = std::fs::read_to_string(&report)
+                .with_context(|| format!("cannot read {}", report.display()))?;
+            print!("{text}");
         }
     }
     Ok(())
