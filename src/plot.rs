@@ -8,6 +8,7 @@
 //! then rename), like every other output.
 
 use anyhow::{anyhow, Context, Result};
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
@@ -147,6 +148,63 @@ fn drawing<E: std::error::Error + Send + Sync + 'static>(
     anyhow!("{e}")
 }
 
+/// A chart's plot area, in f64 data coordinates on both axes.
+type Plane<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// The plot area of both chart kinds on `root`: `title` on top, `x_area`
+/// pixels under the plot for the x labels, 64 beside it for the y labels.
+fn plane<'a, 'b>(
+    root: &'a DrawingArea<BitMapBackend<'b>, Shift>,
+    title: &str,
+    x_area: u32,
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+) -> Result<Plane<'a, 'b>> {
+    ChartBuilder::on(root)
+        .caption(title, text(22.0))
+        .margin(12)
+        .x_label_area_size(x_area)
+        .y_label_area_size(64)
+        .build_cartesian_2d(x, y)
+        .map_err(drawing)
+}
+
+/// An axis of [`draw_mesh`]: its description, number of labels and their
+/// text.
+type Axis<'f> = (&'f str, usize, &'f dyn Fn(&f64) -> String);
+
+/// Axes, horizontal grid lines at the y labels and the axis descriptions,
+/// in the style of every chart here.
+fn draw_mesh(ch: &mut Plane, x: Axis, y: Axis) -> Result<()> {
+    ch.configure_mesh()
+        .disable_x_mesh()
+        .x_labels(x.1)
+        .y_labels(y.1)
+        .x_label_formatter(x.2)
+        .y_label_formatter(y.2)
+        .x_desc(x.0)
+        .y_desc(y.0)
+        .label_style(text(13.0))
+        .axis_desc_style(text(14.0))
+        .bold_line_style(RGBColor(210, 210, 210))
+        .light_line_style(TRANSPARENT)
+        .axis_style(INK)
+        .draw()
+        .map_err(drawing)
+}
+
+/// The legend of the series drawn with labels, at `at`.
+fn draw_legend<'a, 'b: 'a>(ch: &mut Plane<'a, 'b>, at: SeriesLabelPosition) -> Result<()> {
+    ch.configure_series_labels()
+        .position(at)
+        .label_font(text(13.0))
+        .background_style(WHITE.mix(0.85))
+        .border_style(RGBColor(210, 210, 210))
+        .draw()
+        .map_err(drawing)
+}
+
 /// Render `chart` as a PNG at `path` (written to a temporary file, then
 /// renamed). The y axis always includes 0; dashed grey lines mark `hlines`.
 pub fn write_png(chart: &Chart, path: &Path) -> Result<()> {
@@ -181,28 +239,12 @@ pub fn write_png(chart: &Chart, path: &Path) -> Result<()> {
     let xs = tick_step(x1 - x0, 6.0);
     render(path, |root| {
         root.fill(&WHITE).map_err(drawing)?;
-        let mut ch = ChartBuilder::on(root)
-            .caption(&chart.title, text(22.0))
-            .margin(12)
-            .x_label_area_size(42)
-            .y_label_area_size(64)
-            .build_cartesian_2d(x0..x1, y0..y1)
-            .map_err(drawing)?;
-        ch.configure_mesh()
-            .disable_x_mesh()
-            .x_labels(n_ticks(x0, x1, xs))
-            .y_labels(n_ticks(y0, y1, ys))
-            .x_label_formatter(&|v| label(*v, xs))
-            .y_label_formatter(&|v| label(*v, ys))
-            .x_desc(chart.x_label.as_str())
-            .y_desc(chart.y_label.as_str())
-            .label_style(text(13.0))
-            .axis_desc_style(text(14.0))
-            .bold_line_style(RGBColor(210, 210, 210))
-            .light_line_style(TRANSPARENT)
-            .axis_style(INK)
-            .draw()
-            .map_err(drawing)?;
+        let mut ch = plane(root, &chart.title, 42, x0..x1, y0..y1)?;
+        draw_mesh(
+            &mut ch,
+            (&chart.x_label, n_ticks(x0, x1, xs), &|v| label(*v, xs)),
+            (&chart.y_label, n_ticks(y0, y1, ys), &|v| label(*v, ys)),
+        )?;
         let grey = RGBColor(120, 120, 120);
         for (v, l) in &chart.hlines {
             ch.draw_series(DashedLineSeries::new(
@@ -236,13 +278,7 @@ pub fn write_png(chart: &Chart, path: &Path) -> Result<()> {
                 .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], col.stroke_width(2)));
         }
         if !chart.series.is_empty() {
-            ch.configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .label_font(text(13.0))
-                .background_style(WHITE.mix(0.85))
-                .border_style(RGBColor(210, 210, 210))
-                .draw()
-                .map_err(drawing)?;
+            draw_legend(&mut ch, SeriesLabelPosition::UpperLeft)?;
         }
         Ok(())
     })
@@ -309,27 +345,13 @@ pub fn write_bars_png(chart: &BarChart, path: &Path) -> Result<()> {
         } else {
             42
         };
-        let mut ch = ChartBuilder::on(root)
-            .caption(&chart.title, text(22.0))
-            .margin(12)
-            .x_label_area_size(bottom)
-            .y_label_area_size(64)
-            .build_cartesian_2d(0f64..nc as f64, 0f64..y1)
-            .map_err(drawing)?;
-        ch.configure_mesh()
-            .disable_x_mesh()
-            .x_labels(0)
-            .y_labels(n_ticks(0.0, y1, ys))
-            .y_label_formatter(&|v| label(*v, ys))
-            .x_desc(chart.x_label.as_str())
-            .y_desc(chart.y_label.as_str())
-            .label_style(text(13.0))
-            .axis_desc_style(text(14.0))
-            .bold_line_style(RGBColor(210, 210, 210))
-            .light_line_style(TRANSPARENT)
-            .axis_style(INK)
-            .draw()
-            .map_err(drawing)?;
+        let mut ch = plane(root, &chart.title, bottom, 0f64..nc as f64, 0f64..y1)?;
+        // no x labels: the category names are drawn under their groups
+        draw_mesh(
+            &mut ch,
+            (&chart.x_label, 0, &|v| label(*v, 1.0)),
+            (&chart.y_label, n_ticks(0.0, y1, ys), &|v| label(*v, ys)),
+        )?;
         let ns = chart.series.len().max(1);
         let bw = 0.8 / ns as f64;
         for (j, s) in chart.series.iter().enumerate() {
@@ -395,13 +417,7 @@ pub fn write_bars_png(chart: &BarChart, path: &Path) -> Result<()> {
                 .map_err(drawing)?;
         }
         if chart.series.len() > 1 || chart.series.iter().any(|s| !s.label.is_empty()) {
-            ch.configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .label_font(text(13.0))
-                .background_style(WHITE.mix(0.85))
-                .border_style(RGBColor(210, 210, 210))
-                .draw()
-                .map_err(drawing)?;
+            draw_legend(&mut ch, SeriesLabelPosition::UpperRight)?;
         }
         Ok(())
     })

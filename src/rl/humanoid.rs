@@ -1049,14 +1049,11 @@ impl Ctx<'_> {
         } else {
             c.term_object_distance
         };
-        let graced = ep
-            .seam_t
-            .is_some_and(|t| ep.t.saturating_sub(t) <= c.term_grace_steps);
-        let key = if c.term_grace_steps > 0 && graced {
-            0.0
-        } else {
-            c.term_key_distance
-        };
+        let graced = c.term_grace_steps > 0
+            && ep
+                .seam_t
+                .is_some_and(|t| ep.t.saturating_sub(t) <= c.term_grace_steps);
+        let key = if graced { 0.0 } else { c.term_key_distance };
         tracking_lost(s, reference, self.sk, key, obj)
     }
 
