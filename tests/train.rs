@@ -48,7 +48,10 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // continuation past the clip end (200-step episodes, no early
     // termination, so the references do continue), the warm start, the
     // critic warm-up, the adaptive learning rate, value normalisation,
-    // residual actions with a lead and the reference observation
+    // residual actions with a lead, the reference observation and seam
+    // blends; the grace after seams is set too, but without early
+    // termination it only keeps its seam bookkeeping (its effect is tested
+    // in a_grace_after_seams_keeps_the_key_point_rule_off_...)
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
