@@ -1,80 +1,44 @@
 //! `clips.parquet`: one row per ingested clip.
 
-use super::{schema_of, str_list, ColumnSpec};
+use super::columns::{specs, Column, TableRow};
+use super::ColumnSpec;
 use anyhow::Result;
-use arrow::array::{ArrayRef, Float32Array, ListBuilder, StringArray, StringBuilder, UInt32Array};
-use arrow::datatypes::{DataType, Field};
 use arrow::record_batch::RecordBatch;
-use std::sync::Arc;
-
-/// The documented columns.
-pub fn columns() -> Vec<ColumnSpec> {
-    use DataType::*;
-    vec![
-        ColumnSpec::new("clip_id", UInt32, false, "clip index within this table, 0-based, in manifest order (the key of frames.parquet)"),
-        ColumnSpec::new("name", Utf8, false, "clip name (file stem)"),
-        ColumnSpec::new("dataset", Utf8, false, "dataset name (manifest name, or the --from folder's name)"),
-        ColumnSpec::new("skill", Utf8, false, "skill (the clip's folder name in the release)"),
-        ColumnSpec::new("class", UInt32, false, "class id: the integer of the first three characters of the file name; condition slot of the one-hot skill vector (64 slots)"),
-        ColumnSpec::new("label", Utf8, false, "human label (DF, DL, DR, Layup, Shot, Getup, Place-Book, ...)"),
-        ColumnSpec::new("source", Utf8, false, "source file, relative to the data root for manifest datasets"),
-        ColumnSpec::new("sha256", Utf8, false, "sha256 of the source file, hex"),
-        ColumnSpec::new("frames", UInt32, false, "frames in the clip, missing ones included"),
-        ColumnSpec::new("valid_frames", UInt32, false, "frames that are not missing (all-zero rows are missing)"),
-        ColumnSpec::new("fps", Float32, false, "frame rate, Hz (one frame per policy step)"),
-        ColumnSpec::new("duration_s", Float32, false, "frames / fps, s"),
-        ColumnSpec::new("layout", Utf8, false, "tensor layout: D337 (BallPlay, Locomotion), D409 or D415 (ParaHome, one or two objects)"),
-        ColumnSpec::new("skeleton", Utf8, false, "humanoid model: mocap_humanoid (53 bodies) or mocap_parahome_boxhand (61 bodies)"),
-        ColumnSpec::new("objects", str_list(), false, "names of the objects whose state is in frames.parquet, in order (empty for no-object clips)"),
-    ]
-}
 
 /// One clip's row: the motion library's clip description
 /// ([`crate::motion::library::ClipRow`]), one field per column.
 pub use crate::motion::library::ClipRow;
 
+impl TableRow for ClipRow {
+    fn columns() -> Vec<Column<ClipRow>> {
+        vec![
+            Column::new("clip_id", "clip index within this table, 0-based, in manifest order (the key of frames.parquet)", |r: &ClipRow| r.clip_id),
+            Column::new("name", "clip name (file stem)", |r: &ClipRow| r.name.clone()),
+            Column::new("dataset", "dataset name (manifest name, or the --from folder's name)", |r: &ClipRow| r.dataset.clone()),
+            Column::new("skill", "skill (the clip's folder name in the release)", |r: &ClipRow| r.skill.clone()),
+            Column::new("class", "class id: the integer of the first three characters of the file name; condition slot of the one-hot skill vector (64 slots)", |r: &ClipRow| r.class as u32),
+            Column::new("label", "human label (DF, DL, DR, Layup, Shot, Getup, Place-Book, ...)", |r: &ClipRow| r.label.clone()),
+            Column::new("source", "source file, relative to the data root for manifest datasets", |r: &ClipRow| r.source.clone()),
+            Column::new("sha256", "sha256 of the source file, hex", |r: &ClipRow| r.sha256.clone()),
+            Column::new("frames", "frames in the clip, missing ones included", |r: &ClipRow| r.frames),
+            Column::new("valid_frames", "frames that are not missing (all-zero rows are missing)", |r: &ClipRow| r.valid_frames),
+            Column::new("fps", "frame rate, Hz (one frame per policy step)", |r: &ClipRow| r.fps),
+            Column::new("duration_s", "frames / fps, s", |r: &ClipRow| r.frames as f32 / r.fps),
+            Column::new("layout", "tensor layout: D337 (BallPlay, Locomotion), D409 or D415 (ParaHome, one or two objects)", |r: &ClipRow| r.layout.clone()),
+            Column::new("skeleton", "humanoid model: mocap_humanoid (53 bodies) or mocap_parahome_boxhand (61 bodies)", |r: &ClipRow| r.skeleton.clone()),
+            Column::new("objects", "names of the objects whose state is in frames.parquet, in order (empty for no-object clips)", |r: &ClipRow| r.objects.clone()),
+        ]
+    }
+}
+
+/// The documented columns.
+pub fn columns() -> Vec<ColumnSpec> {
+    specs::<ClipRow>()
+}
+
 /// The record batch of `rows`.
 pub fn batch(rows: &[ClipRow]) -> Result<RecordBatch> {
-    fn strs(rows: &[ClipRow], f: impl Fn(&ClipRow) -> &str) -> ArrayRef {
-        Arc::new(StringArray::from_iter_values(rows.iter().map(f)))
-    }
-    let mut objects = ListBuilder::new(StringBuilder::new()).with_field(Arc::new(Field::new(
-        "item",
-        DataType::Utf8,
-        false,
-    )));
-    for r in rows {
-        for o in &r.objects {
-            objects.values().append_value(o);
-        }
-        objects.append(true);
-    }
-    let arrays: Vec<ArrayRef> = vec![
-        Arc::new(UInt32Array::from_iter_values(
-            rows.iter().map(|r| r.clip_id),
-        )),
-        strs(rows, |r| &r.name),
-        strs(rows, |r| &r.dataset),
-        strs(rows, |r| &r.skill),
-        Arc::new(UInt32Array::from_iter_values(
-            rows.iter().map(|r| r.class as u32),
-        )),
-        strs(rows, |r| &r.label),
-        strs(rows, |r| &r.source),
-        strs(rows, |r| &r.sha256),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.frames))),
-        Arc::new(UInt32Array::from_iter_values(
-            rows.iter().map(|r| r.valid_frames),
-        )),
-        Arc::new(Float32Array::from_iter_values(rows.iter().map(|r| r.fps))),
-        Arc::new(Float32Array::from_iter_values(
-            rows.iter().map(|r| r.frames as f32 / r.fps),
-        )),
-        strs(rows, |r| &r.layout),
-        strs(rows, |r| &r.skeleton),
-        Arc::new(objects.finish()),
-    ];
-    Ok(RecordBatch::try_new(schema_of(&columns()), arrays)?)
+    super::columns::batch(rows)
 }
 
 /// Read `clips.parquet` back.

@@ -1,13 +1,11 @@
 //! `eval_trials.parquet` (one row per trial) and `eval_summary.parquet`
 //! (one row per evaluation cell) of `skillaug eval`.
 
-use super::{schema_of, ColumnSpec};
+use super::columns::{specs, Column, TableRow};
+use super::ColumnSpec;
 use anyhow::{Context, Result};
-use arrow::array::{ArrayRef, BooleanArray, Float32Array, Float64Array, StringArray, UInt32Array};
-use arrow::datatypes::DataType;
 use arrow::record_batch::RecordBatch;
 use polars::prelude::{col, len, DataFrame, IntoLazy, NamedFrom, Series, SortMultipleOptions};
-use std::sync::Arc;
 
 /// An evaluation metric: the `metric` column of the eval tables.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -140,156 +138,77 @@ pub struct SummaryRow {
     pub standing: [f64; STANDING_AT.len()],
 }
 
+/// A trial with its method's label: one row of `eval_trials.parquet`.
+struct LabelledTrial {
+    label: String,
+    trial: TrialRow,
+}
+
+impl TableRow for LabelledTrial {
+    fn columns() -> Vec<Column<LabelledTrial>> {
+        type R = LabelledTrial;
+        vec![
+            Column::new("label", "method label of the evaluated policy (e.g. SM+STG+STF+ATS+HE)", |r: &R| r.label.clone()),
+            Column::new("metric", "sr, tsr, nsr (epsilon-NSR) or nr", |r: &R| r.trial.metric.as_str()),
+            Column::new("from_skill", "skill whose reference frames start the trial", |r: &R| r.trial.from.clone()),
+            Column::new("to_skill", "skill of the condition and of the success rule", |r: &R| r.trial.to.clone()),
+            Column::new("trial", "trial index within the cell", |r: &R| r.trial.trial),
+            Column::new("success", "verdict of the success rule (null for nr)", |r: &R| r.trial.success),
+            Column::new("steps", "policy steps of the trial", |r: &R| r.trial.steps),
+            Column::new("mean_sm", "mean SM reward per step with a reference frame (NaN if none)", |r: &R| r.trial.mean_sm),
+            Column::new("final_root_z", "root height at the end of the trial, m", |r: &R| r.trial.final_root_z),
+            Column::new("down_step", "first policy step at which the root was at or below the rule's standing height (0.5 m; 0.7 for getup and run_no_object); null if it stood throughout or for nr", |r: &R| r.trial.down_step),
+        ]
+    }
+}
+
+impl TableRow for SummaryRow {
+    fn columns() -> Vec<Column<SummaryRow>> {
+        type R = SummaryRow;
+        let mut v = vec![
+            Column::new("label", "method label", |r: &R| r.label.clone()),
+            Column::new("metric", "sr, tsr, nsr or nr", |r: &R| r.metric.as_str()),
+            Column::new("from_skill", "start skill", |r: &R| r.from.clone()),
+            Column::new("to_skill", "condition / rule skill", |r: &R| r.to.clone()),
+            Column::new("trials", "trials in the cell", |r: &R| r.trials),
+            Column::new("trial_steps", "policy steps of the cell's longest trial (the trial length); a trial shorter than its success rule's phases is never a success", |r: &R| r.trial_steps),
+            Column::new("successes", "successful trials (0 for nr)", |r: &R| r.successes),
+            Column::new("value", "success rate in [0, 1]; for nr the mean SM reward per step", |r: &R| r.value),
+            Column::new("ci_low", "95 % Wilson interval, lower end (NaN for nr)", |r: &R| r.lo),
+            Column::new("ci_high", "95 % Wilson interval, upper end (NaN for nr)", |r: &R| r.hi),
+        ];
+        for (k, s) in STANDING_AT.iter().enumerate() {
+            v.push(Column::new(s.column, s.doc, move |r: &R| r.standing[k]));
+        }
+        v
+    }
+}
+
 /// Columns of `eval_trials.parquet`.
 pub fn trial_columns() -> Vec<ColumnSpec> {
-    use DataType::*;
-    vec![
-        ColumnSpec::new(
-            "label",
-            Utf8,
-            false,
-            "method label of the evaluated policy (e.g. SM+STG+STF+ATS+HE)",
-        ),
-        ColumnSpec::new("metric", Utf8, false, "sr, tsr, nsr (epsilon-NSR) or nr"),
-        ColumnSpec::new(
-            "from_skill",
-            Utf8,
-            false,
-            "skill whose reference frames start the trial",
-        ),
-        ColumnSpec::new(
-            "to_skill",
-            Utf8,
-            false,
-            "skill of the condition and of the success rule",
-        ),
-        ColumnSpec::new("trial", UInt32, false, "trial index within the cell"),
-        ColumnSpec::new(
-            "success",
-            Boolean,
-            true,
-            "verdict of the success rule (null for nr)",
-        ),
-        ColumnSpec::new("steps", UInt32, false, "policy steps of the trial"),
-        ColumnSpec::new(
-            "mean_sm",
-            Float64,
-            false,
-            "mean SM reward per step with a reference frame (NaN if none)",
-        ),
-        ColumnSpec::new(
-            "final_root_z",
-            Float32,
-            false,
-            "root height at the end of the trial, m",
-        ),
-        ColumnSpec::new(
-            "down_step",
-            UInt32,
-            true,
-            "first policy step at which the root was at or below the rule's standing height (0.5 m; 0.7 for getup and run_no_object); null if it stood throughout or for nr",
-        ),
-    ]
+    specs::<LabelledTrial>()
 }
 
 /// Columns of `eval_summary.parquet`.
 pub fn summary_columns() -> Vec<ColumnSpec> {
-    use DataType::*;
-    vec![
-        ColumnSpec::new("label", Utf8, false, "method label"),
-        ColumnSpec::new("metric", Utf8, false, "sr, tsr, nsr or nr"),
-        ColumnSpec::new("from_skill", Utf8, false, "start skill"),
-        ColumnSpec::new("to_skill", Utf8, false, "condition / rule skill"),
-        ColumnSpec::new("trials", UInt32, false, "trials in the cell"),
-        ColumnSpec::new(
-            "trial_steps",
-            UInt32,
-            false,
-            "policy steps of the cell's longest trial (the trial length); a trial shorter than its success rule's phases is never a success",
-        ),
-        ColumnSpec::new("successes", UInt32, false, "successful trials (0 for nr)"),
-        ColumnSpec::new(
-            "value",
-            Float64,
-            false,
-            "success rate in [0, 1]; for nr the mean SM reward per step",
-        ),
-        ColumnSpec::new(
-            "ci_low",
-            Float64,
-            false,
-            "95 % Wilson interval, lower end (NaN for nr)",
-        ),
-        ColumnSpec::new(
-            "ci_high",
-            Float64,
-            false,
-            "95 % Wilson interval, upper end (NaN for nr)",
-        ),
-    ]
-    .into_iter()
-    .chain(
-        STANDING_AT
-            .iter()
-            .map(|s| ColumnSpec::new(s.column, Float64, false, s.doc)),
-    )
-    .collect()
+    specs::<SummaryRow>()
 }
 
-/// The trials as a record batch.
+/// The trials of the method `label` as a record batch.
 pub fn trials_batch(label: &str, rows: &[TrialRow]) -> Result<RecordBatch> {
-    let s = |f: &dyn Fn(&TrialRow) -> &str| -> ArrayRef {
-        Arc::new(StringArray::from_iter_values(rows.iter().map(f)))
-    };
-    let arrays: Vec<ArrayRef> = vec![
-        Arc::new(StringArray::from_iter_values(rows.iter().map(|_| label))),
-        s(&|r| r.metric.as_str()),
-        s(&|r| &r.from),
-        s(&|r| &r.to),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.trial))),
-        Arc::new(BooleanArray::from(
-            rows.iter().map(|r| r.success).collect::<Vec<_>>(),
-        )),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.steps))),
-        Arc::new(Float64Array::from_iter_values(
-            rows.iter().map(|r| r.mean_sm),
-        )),
-        Arc::new(Float32Array::from_iter_values(
-            rows.iter().map(|r| r.final_root_z),
-        )),
-        Arc::new(UInt32Array::from(
-            rows.iter().map(|r| r.down_step).collect::<Vec<_>>(),
-        )),
-    ];
-    Ok(RecordBatch::try_new(schema_of(&trial_columns()), arrays)?)
+    let rows: Vec<LabelledTrial> = rows
+        .iter()
+        .map(|t| LabelledTrial {
+            label: label.to_string(),
+            trial: t.clone(),
+        })
+        .collect();
+    super::columns::batch(&rows)
 }
 
 /// The summary as a record batch.
 pub fn summary_batch(rows: &[SummaryRow]) -> Result<RecordBatch> {
-    let s = |f: &dyn Fn(&SummaryRow) -> &str| -> ArrayRef {
-        Arc::new(StringArray::from_iter_values(rows.iter().map(f)))
-    };
-    let fl = |f: &dyn Fn(&SummaryRow) -> f64| -> ArrayRef {
-        Arc::new(Float64Array::from_iter_values(rows.iter().map(f)))
-    };
-    let mut arrays: Vec<ArrayRef> = vec![
-        s(&|r| &r.label),
-        s(&|r| r.metric.as_str()),
-        s(&|r| &r.from),
-        s(&|r| &r.to),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.trials))),
-        Arc::new(UInt32Array::from_iter_values(
-            rows.iter().map(|r| r.trial_steps),
-        )),
-        Arc::new(UInt32Array::from_iter_values(
-            rows.iter().map(|r| r.successes),
-        )),
-        fl(&|r| r.value),
-        fl(&|r| r.lo),
-        fl(&|r| r.hi),
-    ];
-    arrays.extend((0..STANDING_AT.len()).map(|k| fl(&|r| r.standing[k])));
-    Ok(RecordBatch::try_new(schema_of(&summary_columns()), arrays)?)
+    super::columns::batch(rows)
 }
 
 /// Per cell (metric, from, to): trial count, successes and the mean SM

@@ -4,18 +4,15 @@
 //! against, so that `skillaug view --rollouts` can play each trial beside its
 //! reference.
 
-use super::columns::F32Rows;
+use super::columns::{specs, Column, TableRow};
 use super::read_util::{bools, check_table, col, opt_u32s, posture_row, strs};
-use super::{f32_fixed, f32_list, schema_of, ColumnSpec};
+use super::ColumnSpec;
 use crate::motion::state::Posture;
 use anyhow::{anyhow, Result};
-use arrow::array::{
-    Array, ArrayRef, AsArray, BooleanArray, Float64Array, StringArray, UInt32Array,
-};
-use arrow::datatypes::{DataType, Float64Type};
+use arrow::array::{Array, AsArray};
+use arrow::datatypes::Float64Type;
 use arrow::record_batch::RecordBatch;
 use std::path::Path;
-use std::sync::Arc;
 
 /// One recorded policy step of one trial.
 #[derive(Clone, Debug, PartialEq)]
@@ -41,72 +38,37 @@ pub struct RolloutStep {
     pub posture: Posture,
 }
 
+impl TableRow for RolloutStep {
+    /// J joints, O objects; quaternions x, y, z, w.
+    fn columns() -> Vec<Column<RolloutStep>> {
+        type R = RolloutStep;
+        vec![
+            Column::new("metric", "sr, tsr, nsr or nr (the eval cell)", |r: &R| r.metric.clone()),
+            Column::new("from_skill", "start skill of the cell", |r: &R| r.from.clone()),
+            Column::new("to_skill", "condition / rule skill of the cell", |r: &R| r.to.clone()),
+            Column::new("trial", "trial within the cell, as in eval_trials.parquet", |r: &R| r.trial),
+            Column::new("step", "policy step, 1-based: the simulated state after the step's action", |r: &R| r.step),
+            Column::new("ref_clip", "clip of the reference frame the step was scored against (clips.parquet clip_id); null when masked or past the clip's end; for a policy evaluated with its reference continued (train.residual_action, train.reference_obs) the continued clip's frame, which the trial sees moved to the character and blended after a seam", |r: &R| r.reference.map(|x| x.0)),
+            Column::new("ref_frame", "frame of that reference frame", |r: &R| r.reference.map(|x| x.1)),
+            Column::new("masked", "the step had no reward target", |r: &R| r.masked),
+            Column::new("sm_reward", "SM reward of the step; null when masked", |r: &R| r.sm_reward),
+            Column::new("root_pos", "simulated root world position, m", |r: &R| r.posture.root_pos),
+            Column::new("root_rot", "simulated root world rotation, unit quaternion (x, y, z, w)", |r: &R| r.posture.root_rot),
+            Column::new("joint_rot", "[J*3] simulated joint exp-maps, rad", |r: &R| r.posture.joint_rot.clone()),
+            Column::new("obj_pos", "[O*3] simulated object positions, m", |r: &R| r.posture.obj_pos.clone()),
+            Column::new("obj_rot", "[O*4] simulated object rotations (x, y, z, w)", |r: &R| r.posture.obj_rot.clone()),
+        ]
+    }
+}
+
 /// The documented columns (J joints, O objects; quaternions x, y, z, w).
 pub fn columns() -> Vec<ColumnSpec> {
-    use DataType::*;
-    vec![
-        ColumnSpec::new("metric", Utf8, false, "sr, tsr, nsr or nr (the eval cell)"),
-        ColumnSpec::new("from_skill", Utf8, false, "start skill of the cell"),
-        ColumnSpec::new("to_skill", Utf8, false, "condition / rule skill of the cell"),
-        ColumnSpec::new("trial", UInt32, false, "trial within the cell, as in eval_trials.parquet"),
-        ColumnSpec::new("step", UInt32, false, "policy step, 1-based: the simulated state after the step's action"),
-        ColumnSpec::new("ref_clip", UInt32, true, "clip of the reference frame the step was scored against (clips.parquet clip_id); null when masked or past the clip's end; for a policy evaluated with its reference continued (train.residual_action, train.reference_obs) the continued clip's frame, which the trial sees moved to the character and blended after a seam"),
-        ColumnSpec::new("ref_frame", UInt32, true, "frame of that reference frame"),
-        ColumnSpec::new("masked", Boolean, false, "the step had no reward target"),
-        ColumnSpec::new("sm_reward", Float64, true, "SM reward of the step; null when masked"),
-        ColumnSpec::new("root_pos", f32_fixed(3), false, "simulated root world position, m"),
-        ColumnSpec::new("root_rot", f32_fixed(4), false, "simulated root world rotation, unit quaternion (x, y, z, w)"),
-        ColumnSpec::new("joint_rot", f32_list(), false, "[J*3] simulated joint exp-maps, rad"),
-        ColumnSpec::new("obj_pos", f32_list(), false, "[O*3] simulated object positions, m"),
-        ColumnSpec::new("obj_rot", f32_list(), false, "[O*4] simulated object rotations (x, y, z, w)"),
-    ]
+    specs::<RolloutStep>()
 }
 
 /// The record batch of `rows`.
 pub fn batch(rows: &[RolloutStep]) -> Result<RecordBatch> {
-    let s = |f: fn(&RolloutStep) -> &str| -> ArrayRef {
-        Arc::new(StringArray::from_iter_values(rows.iter().map(f)))
-    };
-    let u = |f: fn(&RolloutStep) -> Option<u32>| -> ArrayRef {
-        Arc::new(UInt32Array::from(rows.iter().map(f).collect::<Vec<_>>()))
-    };
-    let mut f: Vec<F32Rows> = vec![
-        F32Rows::fixed(3),
-        F32Rows::fixed(4),
-        F32Rows::list(),
-        F32Rows::list(),
-        F32Rows::list(),
-    ];
-    for r in rows {
-        let p = &r.posture;
-        let parts: [&[f32]; 5] = [
-            &p.root_pos,
-            &p.root_rot,
-            &p.joint_rot,
-            &p.obj_pos,
-            &p.obj_rot,
-        ];
-        for (c, v) in f.iter_mut().zip(parts) {
-            c.push(Some(v));
-        }
-    }
-    let mut arrays: Vec<ArrayRef> = vec![
-        s(|r| &r.metric),
-        s(|r| &r.from),
-        s(|r| &r.to),
-        u(|r| Some(r.trial)),
-        u(|r| Some(r.step)),
-        u(|r| r.reference.map(|x| x.0)),
-        u(|r| r.reference.map(|x| x.1)),
-        Arc::new(BooleanArray::from(
-            rows.iter().map(|r| r.masked).collect::<Vec<_>>(),
-        )),
-        Arc::new(Float64Array::from(
-            rows.iter().map(|r| r.sm_reward).collect::<Vec<_>>(),
-        )),
-    ];
-    arrays.extend(f.into_iter().map(F32Rows::finish));
-    Ok(RecordBatch::try_new(schema_of(&columns()), arrays)?)
+    super::columns::batch(rows)
 }
 
 /// Read a rollouts table back.

@@ -2,156 +2,68 @@
 //! Graph (paper Section 4.4, Appendix B.4; reference code:
 //! Ingrid789/SkillMimic-V2 `skillmimic/env/tasks/offline_state_search.py`).
 
+use super::columns::{specs, Column, TableRow};
 use super::read_util::{check_table, col, strs};
-use super::{schema_of, ColumnSpec};
+use super::ColumnSpec;
 use crate::augment::stg::{Edge, SkillSummary};
 use anyhow::{bail, Result};
-use arrow::array::{
-    ArrayRef, AsArray, Float32Array, Float64Array, ListBuilder, StringArray, UInt32Array,
-    UInt32Builder,
-};
-use arrow::datatypes::{DataType, Field, Float32Type, Float64Type, UInt32Type};
+use arrow::array::AsArray;
+use arrow::datatypes::{Float32Type, Float64Type, UInt32Type};
 use arrow::record_batch::RecordBatch;
 use std::path::Path;
-use std::sync::Arc;
+
+/// One kept connection per row of `stg_edges.parquet`.
+impl TableRow for Edge {
+    fn columns() -> Vec<Column<Edge>> {
+        vec![
+            Column::new("target_skill", "skill A whose graph the edge belongs to (the skill to be tracked after the switch)", |e: &Edge| e.target_skill.clone()),
+            Column::new("target_class", "class id of A (the condition during the stitched trajectory)", |e: &Edge| e.target_class),
+            Column::new("src_skill", "skill of the external start state", |e: &Edge| e.src_skill.clone()),
+            Column::new("src_clip", "clip of the external start state (clips.parquet clip_id)", |e: &Edge| e.src_clip),
+            Column::new("src_frame", "frame of the external start state", |e: &Edge| e.src_frame),
+            Column::new("dst_clip", "clip of A the start connects to", |e: &Edge| e.dst_clip),
+            Column::new("dst_frame", "frame of A the start connects to (argmax of S_k)", |e: &Edge| e.dst_frame),
+            Column::new("beta", "similarity S_k (Eq. 19) of the aligned start and the target frame, > tau", |e: &Edge| e.beta),
+            Column::new("n_masked", "masked states between start and target (Eq. 20)", |e: &Edge| e.n_masked),
+            Column::new("align_yaw", "turn about the vertical through the start's root applied to the start state, rad", |e: &Edge| e.align_yaw),
+            Column::new("align_dx", "then this x shift, m (start root x -> target root x)", |e: &Edge| e.align_dx),
+            Column::new("align_dy", "then this y shift, m", |e: &Edge| e.align_dy),
+        ]
+    }
+}
+
+/// One target skill per row of `stg_summary.parquet`.
+impl TableRow for SkillSummary {
+    fn columns() -> Vec<Column<SkillSummary>> {
+        vec![
+            Column::new("target_skill", "skill A", |r: &SkillSummary| r.target_skill.clone()),
+            Column::new("states", "external states considered (valid frames of the other skills' clips; per-target mode: frames of A x other skills)", |r: &SkillSummary| r.states),
+            Column::new("kept", "edges with beta > tau", |r: &SkillSummary| r.kept),
+            Column::new("dropped", "states without a connection (beta <= tau)", |r: &SkillSummary| r.dropped),
+            Column::new("n_hist", "kept edges per masked-state count N = 0, 1, ..., N_max", |r: &SkillSummary| r.n_hist.clone()),
+            Column::new("beta_median", "median beta of the kept edges", |r: &SkillSummary| r.beta_median),
+        ]
+    }
+}
 
 /// Columns of `stg_edges.parquet`: one kept connection each.
 pub fn columns() -> Vec<ColumnSpec> {
-    use DataType::*;
-    vec![
-        ColumnSpec::new(
-            "target_skill",
-            Utf8,
-            false,
-            "skill A whose graph the edge belongs to (the skill to be tracked after the switch)",
-        ),
-        ColumnSpec::new(
-            "target_class",
-            UInt32,
-            false,
-            "class id of A (the condition during the stitched trajectory)",
-        ),
-        ColumnSpec::new(
-            "src_skill",
-            Utf8,
-            false,
-            "skill of the external start state",
-        ),
-        ColumnSpec::new(
-            "src_clip",
-            UInt32,
-            false,
-            "clip of the external start state (clips.parquet clip_id)",
-        ),
-        ColumnSpec::new(
-            "src_frame",
-            UInt32,
-            false,
-            "frame of the external start state",
-        ),
-        ColumnSpec::new("dst_clip", UInt32, false, "clip of A the start connects to"),
-        ColumnSpec::new(
-            "dst_frame",
-            UInt32,
-            false,
-            "frame of A the start connects to (argmax of S_k)",
-        ),
-        ColumnSpec::new(
-            "beta",
-            Float64,
-            false,
-            "similarity S_k (Eq. 19) of the aligned start and the target frame, > tau",
-        ),
-        ColumnSpec::new(
-            "n_masked",
-            UInt32,
-            false,
-            "masked states between start and target (Eq. 20)",
-        ),
-        ColumnSpec::new(
-            "align_yaw",
-            Float32,
-            false,
-            "turn about the vertical through the start's root applied to the start state, rad",
-        ),
-        ColumnSpec::new(
-            "align_dx",
-            Float32,
-            false,
-            "then this x shift, m (start root x -> target root x)",
-        ),
-        ColumnSpec::new("align_dy", Float32, false, "then this y shift, m"),
-    ]
+    specs::<Edge>()
 }
 
 /// Columns of `stg_summary.parquet`: one row per target skill.
 pub fn summary_columns() -> Vec<ColumnSpec> {
-    use DataType::*;
-    vec![
-        ColumnSpec::new("target_skill", Utf8, false, "skill A"),
-        ColumnSpec::new("states", UInt32, false, "external states considered (valid frames of the other skills' clips; per-target mode: frames of A x other skills)"),
-        ColumnSpec::new("kept", UInt32, false, "edges with beta > tau"),
-        ColumnSpec::new("dropped", UInt32, false, "states without a connection (beta <= tau)"),
-        ColumnSpec::new("n_hist", super::u32_list(), false, "kept edges per masked-state count N = 0, 1, ..., N_max"),
-        ColumnSpec::new("beta_median", Float64, true, "median beta of the kept edges"),
-    ]
+    specs::<SkillSummary>()
 }
 
 /// The record batch of `edges`.
 pub fn batch(edges: &[Edge]) -> Result<RecordBatch> {
-    let u = |f: &dyn Fn(&Edge) -> u32| -> ArrayRef {
-        Arc::new(UInt32Array::from_iter_values(edges.iter().map(f)))
-    };
-    let fl = |f: &dyn Fn(&Edge) -> f32| -> ArrayRef {
-        Arc::new(Float32Array::from_iter_values(edges.iter().map(f)))
-    };
-    let arrays: Vec<ArrayRef> = vec![
-        Arc::new(StringArray::from_iter_values(
-            edges.iter().map(|e| e.target_skill.as_str()),
-        )),
-        u(&|e| e.target_class),
-        Arc::new(StringArray::from_iter_values(
-            edges.iter().map(|e| e.src_skill.as_str()),
-        )),
-        u(&|e| e.src_clip),
-        u(&|e| e.src_frame),
-        u(&|e| e.dst_clip),
-        u(&|e| e.dst_frame),
-        Arc::new(Float64Array::from_iter_values(edges.iter().map(|e| e.beta))),
-        u(&|e| e.n_masked),
-        fl(&|e| e.align_yaw),
-        fl(&|e| e.align_dx),
-        fl(&|e| e.align_dy),
-    ];
-    Ok(RecordBatch::try_new(schema_of(&columns()), arrays)?)
+    super::columns::batch(edges)
 }
 
 /// The record batch of the per-skill summaries.
 pub fn summary_batch(rows: &[SkillSummary]) -> Result<RecordBatch> {
-    let mut hist = ListBuilder::new(UInt32Builder::new()).with_field(Arc::new(Field::new(
-        "item",
-        DataType::UInt32,
-        false,
-    )));
-    for r in rows {
-        hist.values().append_slice(&r.n_hist);
-        hist.append(true);
-    }
-    let arrays: Vec<ArrayRef> = vec![
-        Arc::new(StringArray::from_iter_values(
-            rows.iter().map(|r| r.target_skill.as_str()),
-        )),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.states))),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.kept))),
-        Arc::new(UInt32Array::from_iter_values(
-            rows.iter().map(|r| r.dropped),
-        )),
-        Arc::new(hist.finish()),
-        Arc::new(Float64Array::from(
-            rows.iter().map(|r| r.beta_median).collect::<Vec<_>>(),
-        )),
-    ];
-    Ok(RecordBatch::try_new(schema_of(&summary_columns()), arrays)?)
+    super::columns::batch(rows)
 }
 
 /// Read `stg_edges.parquet` back.

@@ -1,12 +1,10 @@
 //! `train_metrics.parquet`: one row per PPO iteration of `skillaug train`.
 
+use super::columns::{specs, Column, TableRow};
 use super::ColumnSpec;
 use anyhow::Result;
-use arrow::array::{ArrayRef, Float64Array, UInt64Array};
-use arrow::datatypes::DataType;
 use arrow::record_batch::RecordBatch;
 use serde::{Deserialize, Serialize};
-use std::sync::Arc;
 
 /// Declares [`Metrics`] (one named `f64` field per metric column),
 /// [`METRICS`] (name and meaning of each, in column order) and their
@@ -170,43 +168,33 @@ impl MetricRow {
     }
 }
 
+impl TableRow for MetricRow {
+    fn columns() -> Vec<Column<MetricRow>> {
+        let mut v = vec![
+            Column::new("iteration", "PPO iteration, from 1", |r: &MetricRow| {
+                r.iteration
+            }),
+            Column::new(
+                "samples",
+                "samples collected so far (environment steps over all environments)",
+                |r: &MetricRow| r.samples,
+            ),
+        ];
+        for &(name, doc) in METRICS {
+            v.push(Column::new(name, doc, move |r: &MetricRow| {
+                r.metrics.get(name).unwrap_or(f64::NAN)
+            }));
+        }
+        v
+    }
+}
+
 /// Columns of `train_metrics.parquet`.
 pub fn columns() -> Vec<ColumnSpec> {
-    let mut v = vec![
-        ColumnSpec::new(
-            "iteration",
-            DataType::UInt64,
-            false,
-            "PPO iteration, from 1",
-        ),
-        ColumnSpec::new(
-            "samples",
-            DataType::UInt64,
-            false,
-            "samples collected so far (environment steps over all environments)",
-        ),
-    ];
-    for (name, doc) in METRICS {
-        v.push(ColumnSpec::new(name, DataType::Float64, false, doc));
-    }
-    v
+    specs::<MetricRow>()
 }
 
 /// The record batch of `rows`.
 pub fn batch(rows: &[MetricRow]) -> Result<RecordBatch> {
-    let values: Vec<Vec<f64>> = rows.iter().map(|r| r.metrics.values()).collect();
-    let mut arrays: Vec<ArrayRef> = vec![
-        Arc::new(UInt64Array::from_iter_values(
-            rows.iter().map(|r| r.iteration),
-        )),
-        Arc::new(UInt64Array::from_iter_values(
-            rows.iter().map(|r| r.samples),
-        )),
-    ];
-    for i in 0..METRICS.len() {
-        arrays.push(Arc::new(Float64Array::from_iter_values(
-            values.iter().map(|v| v[i]),
-        )));
-    }
-    Ok(RecordBatch::try_new(super::schema_of(&columns()), arrays)?)
+    super::columns::batch(rows)
 }
