@@ -25,7 +25,6 @@ pub mod reward;
 pub mod rl;
 pub mod sim;
 pub mod stage;
-pub mod stats;
 pub mod table;
 pub mod view;
 
@@ -47,10 +46,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Ingest(a) => stage::ingest::run(&stage::Common::new(a.common)?, a.skip_bad),
         Command::BuildStg(a) => stage::build_stg::run(&stage::Common::new(a.common)?, a.per_target),
         Command::SampleStf(a) => stage::sample_stf::run(&stage::Common::new(a.common)?),
-        Command::PretrainHe(a) => {
-            let device = a.device.map(|d| d.to_string());
-            stage::pretrain_he::run(&stage::Common::new(a.common)?, device.as_deref())
-        }
+        Command::PretrainHe(a) => stage::pretrain_he::run(&stage::Common::new(a.common)?, a.device),
         Command::Train(a) => {
             let sw = rl::config::Switches {
                 method: a.method,
@@ -59,8 +55,9 @@ pub fn run(cli: Cli) -> Result<()> {
                 stf: a.stf,
                 ats: a.ats,
                 he: a.he,
-                device: a.device.map(|d| d.to_string()),
+                device: a.device,
                 resume: a.resume,
+                ..Default::default()
             };
             stage::train::run(&stage::Common::new(a.common)?, &sw)
         }

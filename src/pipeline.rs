@@ -89,6 +89,8 @@ pub fn parse_method(label: &str, parahome: bool) -> Result<Switches> {
             "STF" => sw.stf = true,
             "ATS" => sw.ats = true,
             "HE" => sw.he = true,
+            "RES" => sw.residual_action = true,
+            "REFOBS" => sw.reference_obs = true,
             "OURS" => {
                 sw.stg = !parahome;
                 sw.stf = true;
@@ -96,7 +98,7 @@ pub fn parse_method(label: &str, parahome: bool) -> Result<Switches> {
                 sw.he = true;
             }
             other => bail!(
-                "run.methods: `{label}`: unknown component `{other}` (eNSI, STG, STF, ATS, HE, Ours)"
+                "run.methods: `{label}`: unknown component `{other}` (eNSI, STG, STF, ATS, HE, Res, RefObs, Ours)"
             ),
         }
     }
@@ -299,5 +301,41 @@ mod tests {
         assert!(d.nsi && !d.stf);
         assert!(parse_method("XM", false).is_err());
         assert!(parse_method("SM+Magic", false).is_err());
+    }
+
+    #[test]
+    fn every_method_label_parses_back_into_its_switches() {
+        use crate::rl::config::TrainConfig;
+        use crate::rl::humanoid::Method;
+        // every combination of the labelled switches (eNSI shows only
+        // without STF), on both methods
+        for bits in 0u32..(1 << 8) {
+            let on = |k: u32| bits & (1 << k) != 0;
+            let cfg = TrainConfig {
+                method: if on(0) { Method::Dm } else { Method::Sm },
+                nsi: on(1),
+                stg: on(2),
+                stf: on(3),
+                ats: on(4),
+                he: on(5),
+                residual_action: on(6),
+                reference_obs: on(7),
+                ..Default::default()
+            };
+            let label = crate::eval::method_label(&cfg);
+            let mut back = TrainConfig::default();
+            parse_method(&label, false).unwrap().apply(&mut back);
+            assert_eq!(crate::eval::method_label(&back), label);
+            assert_eq!(
+                (back.method, back.stg, back.stf, back.ats, back.he),
+                (cfg.method, cfg.stg, cfg.stf, cfg.ats, cfg.he),
+                "{label}"
+            );
+            assert_eq!(
+                (back.residual_action, back.reference_obs),
+                (cfg.residual_action, cfg.reference_obs),
+                "{label}"
+            );
+        }
     }
 }

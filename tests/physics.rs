@@ -314,10 +314,10 @@ fn the_proximity_rule_agrees_with_the_clips_contact_flag() {
     }
     let all = checks::ContactAgreement {
         frames: n,
-        flagged: rows.iter().filter(|r| r.0).count(),
+        flagged: rows.iter().filter(|r| r.flag).count(),
         rows,
     };
-    let (prox, touch) = (all.proximity(0.2), all.agreement(|r| r.2));
+    let (prox, touch) = (all.proximity(0.2), all.agreement(|r| r.touch_any));
     eprintln!("{n} frames: proximity 0.2 m {prox:.3}, touch {touch:.3}");
     assert!(prox >= 0.9, "proximity agrees on {prox}");
     assert!(

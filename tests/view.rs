@@ -280,7 +280,7 @@ fn view_pages_show_clips_stf_samples_and_recorded_rollouts() {
         .map(|v| v.as_u64().unwrap())
         .collect();
     let want: Vec<u64> = std::iter::once(0)
-        .chain(masked_traj.steps.iter().map(|(m, _)| *m as u64))
+        .chain(masked_traj.steps.iter().map(|st| st.masked as u64))
         .collect();
     assert_eq!(marks, want);
     assert!(marks.iter().filter(|m| **m == 1).count() >= masked_traj.n_masked as usize);

@@ -147,6 +147,16 @@ impl Ats {
         )
     }
 
+    /// The clips of `lib` for which `keep(clip)` holds, nothing visited:
+    /// the others never start an episode (skills left out of a run).
+    pub fn for_clips(lib: &MotionLib, keep: impl Fn(usize) -> bool) -> Ats {
+        let mut ats = Ats::new(lib);
+        for c in (0..lib.clips.len()).filter(|c| !keep(*c)) {
+            ats.disable_clip(c);
+        }
+        ats
+    }
+
     /// From each clip's class and allowed start frames.
     pub fn from_parts(class: Vec<u32>, allowed: Vec<Vec<bool>>) -> Ats {
         assert_eq!(class.len(), allowed.len(), "one class per clip");

@@ -77,6 +77,16 @@ pub fn seams(lib: &MotionLib, w: &Weights, min_loop: usize) -> Vec<Option<Seam>>
         .collect()
 }
 
+/// The seams training uses: [`seams`] with the library's SM weights (the
+/// dataset's, [`Weights::sm`]) and a shortest loop of `min_loop_s` seconds
+/// at `fps` frames per second (at least one frame). Returns the seams and
+/// that loop length in frames.
+pub fn training_seams(lib: &MotionLib, min_loop_s: f64, fps: f64) -> (Vec<Option<Seam>>, usize) {
+    let min_loop = ((min_loop_s * fps).ceil() as usize).max(1);
+    let w = Weights::sm(reward::DatasetKind::of_library(lib));
+    (seams(lib, &w, min_loop), min_loop)
+}
+
 /// A reference frame blended across a seam: `from` (the frame the old clip
 /// ended on) moved so its root x, y and heading are `to`'s
 /// ([`reward::align_to`]), then mixed with `to` (a frame after the seam)

@@ -1,10 +1,12 @@
 //! Evaluation: the evaluator of `skillaug eval` ([`evaluator`]), success
-//! rules ([`rules`]) and the paper-shaped tables of `skillaug report`
-//! ([`report`]); the statistics of its tables are in [`crate::stats`].
+//! rules ([`rules`]), the per-cell summary with its Wilson intervals
+//! ([`summary`]) and the paper-shaped tables of `skillaug report`
+//! ([`report`]).
 
 pub mod evaluator;
 pub mod report;
 pub mod rules;
+pub mod summary;
 
 /// The label of a policy from its switches: "SM", "DM+eNSI", "SM+STG+STF+ATS+HE", ...
 /// ("+Res" and "+RefObs" for residual actions and the reference observation).

@@ -183,9 +183,9 @@ pub fn gather(lib: &MotionLib, sel: &Selection) -> Result<Vec<Motion>> {
             let mut poses = vec![Some(t.start.clone())];
             let mut masked = vec![false];
             let mut clip = None;
-            for (m, r) in &t.steps {
-                if let Some((c, _)) = r {
-                    clip = Some(lib.clips.get(*c as usize).with_context(|| {
+            for st in &t.steps {
+                if let Some((c, _)) = st.reference {
+                    clip = Some(lib.clips.get(c as usize).with_context(|| {
                         format!(
                             "{}: trajectory {} names clip {c}, which {} lacks",
                             p.display(),
@@ -194,8 +194,8 @@ pub fn gather(lib: &MotionLib, sel: &Selection) -> Result<Vec<Motion>> {
                         )
                     })?);
                 }
-                poses.push(r.and_then(|(c, f)| frame(lib, c, f)));
-                masked.push(*m);
+                poses.push(st.reference.and_then(|(c, f)| frame(lib, c, f)));
+                masked.push(st.masked);
             }
             let row = clip.unwrap_or(&lib.clips[0]);
             items.push(Motion {

@@ -41,7 +41,7 @@ pub struct HeSettings {
     /// Predictor hidden sizes.
     pub predictor_hidden: Vec<usize>,
     /// `cpu`, or `cuda` / `cuda:N` (cargo feature `cuda`).
-    pub device: String,
+    pub device: super::DeviceName,
     /// Print a plain progress line every this many steps when stderr is not a terminal.
     pub log_every: usize,
 }
@@ -94,7 +94,7 @@ impl Default for HeSettings {
             conv: vec![128, 64, 32],
             kernel: 3,
             predictor_hidden: vec![1024, 512, 512],
-            device: "cpu".into(),
+            device: super::DeviceName::Cpu,
             log_every: 100,
         }
     }
@@ -147,12 +147,23 @@ fn batch(
     })
 }
 
-/// Embeddings of every present frame: `(clip, frame, h)`.
+/// The embedding h_t of one reference frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameEmbedding {
+    /// Clip of the motion library.
+    pub clip: usize,
+    /// Frame t (h is computed from the frames before it).
+    pub frame: usize,
+    /// h_t.
+    pub h: [f32; 3],
+}
+
+/// Embeddings of every present frame.
 fn embed_all(
     enc: &HistoryEncoder,
     feats: &[Vec<Option<Vec<f32>>>],
     dev: &Device,
-) -> Result<Vec<(usize, usize, [f32; 3])>> {
+) -> Result<Vec<FrameEmbedding>> {
     let frames: Vec<(usize, usize)> = feats
         .iter()
         .enumerate()
@@ -177,7 +188,11 @@ fn embed_all(
             for (d, x) in a.iter_mut().zip(row.iter()) {
                 *d = *x;
             }
-            out.push((c, t, a));
+            out.push(FrameEmbedding {
+                clip: c,
+                frame: t,
+                h: a,
+            });
         }
     }
     Ok(out)
@@ -185,7 +200,7 @@ fn embed_all(
 
 /// Between-skill over within-skill variance of embeddings (larger = the
 /// skills are better separated).
-pub fn separation(emb: &[(usize, usize, [f32; 3])], lib: &MotionLib) -> f64 {
+pub fn separation(emb: &[FrameEmbedding], lib: &MotionLib) -> f64 {
     let skills = lib.skills();
     let mut sums = vec![([0f64; 3], 0f64); skills.len()];
     let mut all = [0f64; 3];
@@ -195,8 +210,8 @@ pub fn separation(emb: &[(usize, usize, [f32; 3])], lib: &MotionLib) -> f64 {
             .position(|s| *s == lib.clips[c].skill)
             .unwrap_or(0)
     };
-    for (c, _, h) in emb {
-        let s = &mut sums[skill_of(*c)];
+    for FrameEmbedding { clip, h, .. } in emb {
+        let s = &mut sums[skill_of(*clip)];
         for d in 0..3 {
             s.0[d] += h[d] as f64;
             all[d] += h[d] as f64;
@@ -217,8 +232,8 @@ pub fn separation(emb: &[(usize, usize, [f32; 3])], lib: &MotionLib) -> f64 {
         / n;
     let within: f64 = emb
         .iter()
-        .map(|(c, _, h)| {
-            let mu = means[skill_of(*c)];
+        .map(|FrameEmbedding { clip, h, .. }| {
+            let mu = means[skill_of(*clip)];
             (0..3).map(|d| (h[d] as f64 - mu[d]).powi(2)).sum::<f64>()
         })
         .sum::<f64>()
@@ -236,8 +251,8 @@ pub struct Pretrained {
     pub named: std::collections::HashMap<String, Tensor>,
     /// One row per optimiser step.
     pub curve: Vec<LossRow>,
-    /// (clip, frame, h) of every frame with a history, after training.
-    pub trained: Vec<(usize, usize, [f32; 3])>,
+    /// The embedding of every frame with a history, after training.
+    pub trained: Vec<FrameEmbedding>,
     /// Between- over within-skill variance of h, untrained and trained.
     pub separation: (f64, f64),
 }

@@ -52,6 +52,20 @@ impl std::fmt::Display for DeviceName {
     }
 }
 
+/// In recipes and resolved settings a device is its name (`"cuda:1"`).
+impl serde::Serialize for DeviceName {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for DeviceName {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<DeviceName, D::Error> {
+        let name = String::deserialize(d)?;
+        name.parse().map_err(serde::de::Error::custom)
+    }
+}
+
 impl DeviceName {
     /// The device; a CUDA one only in a build with the `cuda` feature.
     pub fn open(self) -> Result<Device> {
@@ -67,12 +81,6 @@ impl DeviceName {
             }
         }
     }
-}
-
-/// The compute device named `name` ([`DeviceName`]: `cpu`, or `cuda` /
-/// `cuda:N` with the `cuda` feature).
-pub fn device(name: &str) -> Result<Device> {
-    name.parse::<DeviceName>()?.open()
 }
 
 /// Named trainable variables, in a stable (sorted) order.
@@ -417,13 +425,23 @@ mod tests {
             let e = n.parse::<DeviceName>().unwrap_err().to_string();
             assert_eq!(e, format!("unknown device `{n}` (cpu, cuda, cuda:N)"));
         }
-        assert!(device("cpu").unwrap().is_cpu());
+        assert!(DeviceName::Cpu.open().unwrap().is_cpu());
         if !cfg!(feature = "cuda") {
-            let e = device("cuda:1").unwrap_err().to_string();
+            let e = DeviceName::Cuda(Some(1)).open().unwrap_err().to_string();
             assert!(
                 e.contains("--device cuda:1: this build has no CUDA support"),
                 "{e}"
             );
         }
+        // in recipes: the name, checked when the recipe is read
+        #[derive(serde::Deserialize, serde::Serialize)]
+        struct Holder {
+            device: DeviceName,
+        }
+        let h: Holder = toml::from_str("device = \"cuda:2\"").unwrap();
+        assert_eq!(h.device, DeviceName::Cuda(Some(2)));
+        assert_eq!(toml::to_string(&h).unwrap().trim(), "device = \"cuda:2\"");
+        let e = toml::from_str::<Holder>("device = \"tpu\"").err().unwrap();
+        assert!(e.to_string().contains("unknown device `tpu`"), "{e}");
     }
 }

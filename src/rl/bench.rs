@@ -67,7 +67,7 @@ pub fn time_iterations(s: &Setup, cfg: &TrainConfig, repeat: usize) -> Result<It
         env.act_dim(),
         &cfg.ppo_config(),
         0,
-        &crate::nn::device("cpu")?,
+        &crate::nn::DeviceName::Cpu.open()?,
     )?;
     let mut tracker = EpisodeTracker::new(cfg.envs());
     let (mut sim, mut act, mut upd, mut total) = (vec![], vec![], vec![], vec![]);

@@ -27,8 +27,13 @@ pub struct Switches {
     pub ats: bool,
     /// `--he`.
     pub he: bool,
+    /// Residual actions (`train.residual_action`; the `+Res` of a method
+    /// label).
+    pub residual_action: bool,
+    /// The reference observation (`train.reference_obs`; `+RefObs`).
+    pub reference_obs: bool,
     /// `--device`.
-    pub device: Option<String>,
+    pub device: Option<crate::nn::DeviceName>,
     /// `--resume`.
     pub resume: bool,
 }
@@ -45,6 +50,8 @@ impl Switches {
         cfg.stf |= self.stf;
         cfg.ats |= self.ats;
         cfg.he |= self.he;
+        cfg.residual_action |= self.residual_action;
+        cfg.reference_obs |= self.reference_obs;
     }
 }
 

@@ -139,12 +139,8 @@ impl Setup {
         }
         let objects = objects::load_all(&first.objects, &root)?;
         let sim = SimOptions::for_fps(first.fps as f64);
-        let min_loop = (cfg.seam_min_loop_s * first.fps as f64).ceil() as usize;
-        let seams = crate::augment::seam::seams(
-            &lib,
-            &Weights::sm(DatasetKind::of_library(&lib)),
-            min_loop.max(1),
-        );
+        let (seams, _) =
+            crate::augment::seam::training_seams(&lib, cfg.seam_min_loop_s, first.fps as f64);
         Ok(Setup {
             seams,
             fk: stf_cfg.fk,
@@ -243,12 +239,7 @@ pub fn environment_with<'a>(
     n: usize,
     rng: &mut ChaCha8Rng,
 ) -> Result<HumanoidEnv<'a>> {
-    let mut ats = Ats::new(&s.lib);
-    for c in 0..s.lib.clips.len() {
-        if !clips.contains(&c) {
-            ats.disable_clip(c);
-        }
-    }
+    let ats = Ats::for_clips(&s.lib, |c| clips.contains(&c));
     let weights = Weights::sm(DatasetKind::of_library(&s.lib));
     let mut sampler = StfSampler::new(&s.lib, &s.edges, weights);
     if s.fk && stf.p_n > 0.0 {

@@ -148,23 +148,35 @@ pub struct ContactAgreement {
     pub frames: usize,
     /// Frames whose flag is set.
     pub flagged: usize,
-    /// Per frame: the flag, the smallest hand-to-ball distance of the
-    /// state set into the world (m), whether a hand touched the ball at any
-    /// substep of one policy step from it (PD targets = the frame's pose),
-    /// and whether it touched after the last substep.
-    pub rows: Vec<(bool, f32, bool, bool)>,
+    /// One row per compared frame.
+    pub rows: Vec<ContactFrame>,
+}
+
+/// One reference frame set into the world: its contact flag beside what
+/// the simulated contact rules see.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContactFrame {
+    /// The clip's contact flag.
+    pub flag: bool,
+    /// Smallest hand-to-ball distance of the state set into the world, m.
+    pub hand_distance: f32,
+    /// A hand touched the ball at some substep of one policy step from the
+    /// frame (PD targets = the frame's pose).
+    pub touch_any: bool,
+    /// A hand touched the ball after the last substep.
+    pub touch_last: bool,
 }
 
 impl ContactAgreement {
-    /// Fraction of frames where `rule(row)` equals the flag.
-    pub fn agreement(&self, rule: impl Fn(&(bool, f32, bool, bool)) -> bool) -> f64 {
-        let ok = self.rows.iter().filter(|r| rule(r) == r.0).count();
+    /// Fraction of frames where `rule(frame)` equals the flag.
+    pub fn agreement(&self, rule: impl Fn(&ContactFrame) -> bool) -> f64 {
+        let ok = self.rows.iter().filter(|r| rule(r) == r.flag).count();
         ok as f64 / self.rows.len().max(1) as f64
     }
 
     /// Agreement of the proximity rule at `radius`, m.
     pub fn proximity(&self, radius: f32) -> f64 {
-        self.agreement(|r| r.1 < radius)
+        self.agreement(|r| r.hand_distance < radius)
     }
 
     /// The frames of every one of `parts` (clips) pooled into one.
@@ -176,7 +188,7 @@ impl ContactAgreement {
         }
         ContactAgreement {
             frames,
-            flagged: rows.iter().filter(|r| r.0).count(),
+            flagged: rows.iter().filter(|r| r.flag).count(),
             rows,
         }
     }
@@ -216,11 +228,16 @@ pub fn contact_agreement(
         w.set_joint_targets(&s.joint_rot);
         let near = w.hand_distance(0);
         let c = w.step_with_contacts();
-        rows.push((s.contact, near, c.object_hands_any[0], c.object_hands[0]));
+        rows.push(ContactFrame {
+            flag: s.contact,
+            hand_distance: near,
+            touch_any: c.object_hands_any[0],
+            touch_last: c.object_hands[0],
+        });
     }
     Ok(Some(ContactAgreement {
         frames: rows.len(),
-        flagged: rows.iter().filter(|r| r.0).count(),
+        flagged: rows.iter().filter(|r| r.flag).count(),
         rows,
     }))
 }

@@ -42,8 +42,8 @@ pub fn run(common: &Common) -> Result<()> {
             a.frames,
             100.0 * a.flagged as f64 / a.frames.max(1) as f64,
             100.0 * a.proximity(radius),
-            100.0 * a.agreement(|r| r.2),
-            100.0 * a.agreement(|r| r.3),
+            100.0 * a.agreement(|r| r.touch_any),
+            100.0 * a.agreement(|r| r.touch_last),
         );
     }
     let total = ContactAgreement::all(found.iter().map(|(_, a)| a));
@@ -54,8 +54,8 @@ pub fn run(common: &Common) -> Result<()> {
         100.0 * total.flagged as f64 / n.max(1) as f64,
         radius,
         100.0 * total.proximity(radius),
-        100.0 * total.agreement(|r| r.2),
-        100.0 * total.agreement(|r| r.3),
+        100.0 * total.agreement(|r| r.touch_any),
+        100.0 * total.agreement(|r| r.touch_last),
     );
     let (best_r, best) = total.best_radius();
     println!(

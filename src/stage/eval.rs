@@ -60,7 +60,7 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         cfg: &cfg,
     };
     let (rows, recorded) = ev.run_all(&cells, common.args.seed)?;
-    let summary = etable::summarise(&label, &rows)?;
+    let summary = crate::eval::summary::summarise(&label, &rows)?;
     let resolved = common.resolved_toml("eval", &cfg)?;
     let tmeta = table::Meta::new(&dataset, &resolved)
         .with("ingest_id", table::ingest_id(&input.join("clips.parquet"))?)
@@ -87,7 +87,7 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
     out.text("eval.resolved.toml", &resolved)?;
     out.commit()?;
     if !common.args.quiet {
-        println!("{}", etable::render(&summary));
+        println!("{}", crate::eval::summary::render(&summary));
         println!(
             "wrote {}",
             common.args.out.join("eval_summary.parquet").display()

@@ -12,14 +12,14 @@ use std::io::IsTerminal;
 use std::time::Instant;
 
 /// Run the stage; `device_flag` is `--device`.
-pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
+pub fn run(common: &Common, device_flag: Option<nn::DeviceName>) -> Result<()> {
     let started = Instant::now();
     let mut set: HeSettings = common.settings("pretrain-he")?;
     if let Some(d) = device_flag {
-        set.device = d.to_string();
+        set.device = d;
     }
     let _lock = common.lock_output("pretrain-he")?;
-    let dev = nn::device(&set.device)?;
+    let dev = set.device.open()?;
     let lib = table::load_library(common.input_dir())?;
     let ingest_id = Some(table::ingest_id(&common.input_dir().join("clips.parquet"))?)
         .filter(|id| !id.is_empty());
@@ -60,11 +60,11 @@ pub fn run(common: &Common, device_flag: Option<&str>) -> Result<()> {
         .with("separation_trained", format!("{sep_after:.6}"));
     let emb_rows: Vec<table::he::EmbeddingRow> = trained
         .iter()
-        .map(|(c, t, h)| table::he::EmbeddingRow {
-            clip_id: *c as u32,
-            frame: *t as u32,
-            skill: lib.clips[*c].skill.clone(),
-            h: *h,
+        .map(|e| table::he::EmbeddingRow {
+            clip_id: e.clip as u32,
+            frame: e.frame as u32,
+            skill: lib.clips[e.clip].skill.clone(),
+            h: e.h,
         })
         .collect();
     let mut out = Outputs::new(&common.args.out)?;

@@ -40,7 +40,6 @@ pub fn run(common: &Common) -> Result<()> {
             input.display()
         );
     }
-    let mut ats = Ats::new(&lib);
     if !cfg.skills.is_empty() {
         let all = lib.skills();
         for s in &cfg.skills {
@@ -52,12 +51,10 @@ pub fn run(common: &Common) -> Result<()> {
                 );
             }
         }
-        for c in 0..lib.clips.len() {
-            if !cfg.skills.contains(&lib.clips[c].skill) {
-                ats.disable_clip(c);
-            }
-        }
     }
+    let mut ats = Ats::for_clips(&lib, |c| {
+        cfg.skills.is_empty() || cfg.skills.contains(&lib.clips[c].skill)
+    });
     let edges = if cfg.p_e > 0.0 {
         table::stg::load_edges(input, &lib, cfg.p_e)?
     } else {
@@ -70,8 +67,8 @@ pub fn run(common: &Common) -> Result<()> {
         let rows = table::stf::read_rewards(path)
             .context("sample-stf.rewards: cannot use the ATS rewards table")?;
         table::stf::check_rewards(path, &rows, &lib)?;
-        for &(c, f, r) in &rows {
-            ats.set_mean(c as usize, f as usize, r);
+        for r in &rows {
+            ats.set_mean(r.clip_id as usize, r.frame as usize, r.mean_reward);
         }
         rows.len()
     };
@@ -79,10 +76,7 @@ pub fn run(common: &Common) -> Result<()> {
     let mut sampler = StfSampler::new(&lib, &edges, weights);
     if cfg.fk && cfg.p_n > 0.0 {
         let root = crate::dataset::data_root(common.args.data_root.as_deref())?;
-        let path = root
-            .join("assets/mjcf")
-            .join(format!("{}.xml", lib.skeleton.name()));
-        let model = crate::sim::mjcf::Model::load(&path).map_err(|e| {
+        let model = crate::sim::mjcf::Model::for_skeleton(&root, lib.skeleton).map_err(|e| {
             anyhow::anyhow!("{e:#} (needed for the forward kinematics of perturbed starts; --set sample-stf.fk=false moves bodies rigidly instead)")
         })?;
         sampler = sampler.with_model(model);

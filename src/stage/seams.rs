@@ -6,7 +6,6 @@
 
 use super::Common;
 use crate::augment::{n_masked, seam};
-use crate::reward::{DatasetKind, Weights};
 use anyhow::Result;
 
 /// Run the command: print the table.
@@ -15,10 +14,8 @@ pub fn run(common: &Common) -> Result<()> {
     let stf: crate::augment::settings::StfConfig = common.settings("sample-stf")?;
     let (p, _) = stf.params()?;
     let lib = crate::table::load_library(common.input_dir())?;
-    let w = Weights::sm(DatasetKind::of_library(&lib));
     let fps = lib.clips.first().map_or(60.0, |c| c.fps as f64);
-    let min_loop = ((cfg.seam_min_loop_s * fps).ceil() as usize).max(1);
-    let seams = seam::seams(&lib, &w, min_loop);
+    let (seams, min_loop) = seam::training_seams(&lib, cfg.seam_min_loop_s, fps);
     println!(
         "{:<16} {:<34} {:>5}   {:<34} {:>5} {:>10} {:>3}",
         "skill", "clip", "last", "continues in", "frame", "beta", "N"

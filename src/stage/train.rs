@@ -49,7 +49,7 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
     } else {
         None
     };
-    let dev = crate::nn::device(sw.device.as_deref().unwrap_or("cpu"))?;
+    let dev = sw.device.unwrap_or_default().open()?;
     let stf_cfg = common.settings("sample-stf")?;
     let s = Setup::load(
         common.input_dir(),

@@ -168,10 +168,22 @@ fn ints(b: &RecordBatch, name: &str, path: &Path) -> Result<Vec<u64>> {
     v.ok_or_else(|| anyhow!("{}: column `{name}` has negative values", path.display()))
 }
 
+/// One row of an ATS rewards table: the mean reward R̄ of the start frame
+/// (Eq. 21) that `sample-stf.rewards` seeds the sampler with.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RewardRow {
+    /// Clip (clips.parquet clip_id).
+    pub clip_id: u32,
+    /// Start frame.
+    pub frame: u32,
+    /// Mean reward of episodes started there.
+    pub mean_reward: f64,
+}
+
 /// Read an ATS rewards table: columns `clip_id` (UInt32; any integer type
 /// is accepted), `frame` (UInt32) and `mean_reward` (Float64 or Float32), one
-/// row per (clip, start frame). Returns (clip_id, frame, mean_reward) rows.
-pub fn read_rewards(path: &Path) -> Result<Vec<(u32, u32, f64)>> {
+/// row per (clip, start frame).
+pub fn read_rewards(path: &Path) -> Result<Vec<RewardRow>> {
     let t = super::io::read_parquet(path)?;
     let mut out = Vec::new();
     for b in &t.batches {
@@ -208,7 +220,11 @@ pub fn read_rewards(path: &Path) -> Result<Vec<(u32, u32, f64)>> {
                     r[i]
                 );
             }
-            out.push((c, f, r[i]));
+            out.push(RewardRow {
+                clip_id: c,
+                frame: f,
+                mean_reward: r[i],
+            });
         }
     }
     Ok(out)
@@ -223,11 +239,12 @@ pub fn read_rewards(path: &Path) -> Result<Vec<(u32, u32, f64)>> {
 /// and the row).
 pub fn check_rewards(
     path: &Path,
-    rows: &[(u32, u32, f64)],
+    rows: &[RewardRow],
     lib: &crate::motion::MotionLib,
 ) -> Result<()> {
     let mut seen = std::collections::BTreeSet::new();
-    for (i, (c, f, _)) in rows.iter().enumerate() {
+    for (i, row) in rows.iter().enumerate() {
+        let (c, f) = (&row.clip_id, &row.frame);
         let Some(cf) = lib.frames.get(*c as usize) else {
             bail!(
                 "{}: row {i}: clip_id {c} is not a clip of this run ({} clips)",
@@ -267,8 +284,17 @@ pub struct SampledTrajectory {
     pub n_masked: u32,
     /// The start state's posture (step 0).
     pub start: crate::motion::state::Posture,
-    /// Steps 1.. : (masked, reference (clip, frame)).
-    pub steps: Vec<(bool, Option<(u32, u32)>)>,
+    /// Steps 1.. .
+    pub steps: Vec<SampledStep>,
+}
+
+/// One step after the start of a [`SampledTrajectory`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampledStep {
+    /// The step has no reward target (one of the N masked states).
+    pub masked: bool,
+    /// Its reference frame (clip, frame); `None` when masked.
+    pub reference: Option<(u32, u32)>,
 }
 
 /// Read the trajectories of an `stf_samples` table (rows grouped by
@@ -309,7 +335,10 @@ pub fn read_trajectories(path: &Path) -> Result<Vec<SampledTrajectory>> {
                 });
             } else {
                 match out.last_mut() {
-                    Some(t) if t.traj_id == tid => t.steps.push((masked[i], rc[i].zip(rf[i]))),
+                    Some(t) if t.traj_id == tid => t.steps.push(SampledStep {
+                        masked: masked[i],
+                        reference: rc[i].zip(rf[i]),
+                    }),
                     _ => return Err(bad("a step before its trajectory's step 0")),
                 }
             }
