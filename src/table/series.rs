@@ -101,14 +101,24 @@ pub fn n_histogram(path: &Path) -> Result<Vec<(u32, u32)>> {
     Ok(n.into_iter().zip(e).collect())
 }
 
-/// One bar per eval cell: (label, cell, value, interval).
-pub type Cell = (String, String, f64, Option<(f64, f64)>);
+/// One eval cell as a bar.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EvalBar {
+    /// Method label (the series).
+    pub label: String,
+    /// The cell: `metric from` or `metric from>to` (the category).
+    pub cell: String,
+    /// Success rate, or NR's mean SM reward per step.
+    pub value: f64,
+    /// The 95 % Wilson interval (none for NR).
+    pub interval: Option<(f64, f64)>,
+}
 
 /// The cells of an eval summary, one bar each.
 ///
 /// # Errors
 /// A file that is not an eval summary.
-pub fn eval_cells(path: &Path) -> Result<Vec<Cell>> {
+pub fn eval_bars(path: &Path) -> Result<Vec<EvalBar>> {
     use super::eval::summary_frame;
     use super::io::{frame_f64s, frame_strs};
     let df = summary_frame(path)?;
@@ -124,8 +134,12 @@ pub fn eval_cells(path: &Path) -> Result<Vec<Cell>> {
             } else {
                 format!("{} {}>{}", metric[i], from[i], to[i])
             };
-            let iv = (lo[i].is_finite() && hi[i].is_finite()).then_some((lo[i], hi[i]));
-            (label[i].clone(), name, v[i], iv)
+            EvalBar {
+                label: label[i].clone(),
+                cell: name,
+                value: v[i],
+                interval: (lo[i].is_finite() && hi[i].is_finite()).then_some((lo[i], hi[i])),
+            }
         })
         .collect())
 }

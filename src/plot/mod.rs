@@ -7,6 +7,8 @@
 //! crate and written through [`crate::table::io::Staged`] (temporary file,
 //! then rename), like every other output.
 
+pub mod figures;
+
 use anyhow::{anyhow, Context, Result};
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
