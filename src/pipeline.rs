@@ -1,6 +1,6 @@
-//! The plan of `skillaug run RECIPE`: the `[run]` settings, the method
-//! labels, the chain of steps with their hashes and the lock file that
-//! records which finished (the stage `skillaug run` executes the steps).
+//! The plan of `skillaug run RECIPE`: the `[run]` settings, the chain of
+//! steps with their hashes and the lock file that records which finished
+//! (method labels are parsed by [`crate::eval::parse_method`]) (the stage `skillaug run` executes the steps).
 //!
 //! `run.lock.json` records, per step, a hash of everything the step depends
 //! on: its recipe table with the `--set` overrides, the seed, the data
@@ -10,8 +10,7 @@
 //! finish runs again (training resumes from its checkpoint).
 
 use crate::config::{hash_text, Recipe, SetArg};
-use crate::rl::config::Switches;
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -67,42 +66,6 @@ impl Default for RunConfig {
             policy_per_skill: Vec::new(),
         }
     }
-}
-
-/// The switches of a method label.
-pub fn parse_method(label: &str, parahome: bool) -> Result<Switches> {
-    use crate::rl::humanoid::Method;
-    let mut parts = label.split('+').map(str::trim);
-    let method = match parts.next().unwrap_or("").to_ascii_uppercase().as_str() {
-        "SM" => Method::Sm,
-        "DM" => Method::Dm,
-        other => bail!("run.methods: `{label}`: `{other}` is not SM or DM"),
-    };
-    let mut sw = Switches {
-        method: Some(method),
-        ..Default::default()
-    };
-    for p in parts {
-        match p.to_ascii_uppercase().as_str() {
-            "ENSI" | "NSI" => sw.nsi = true,
-            "STG" => sw.stg = true,
-            "STF" => sw.stf = true,
-            "ATS" => sw.ats = true,
-            "HE" => sw.he = true,
-            "RES" => sw.residual_action = true,
-            "REFOBS" => sw.reference_obs = true,
-            "OURS" => {
-                sw.stg = !parahome;
-                sw.stf = true;
-                sw.ats = true;
-                sw.he = true;
-            }
-            other => bail!(
-                "run.methods: `{label}`: unknown component `{other}` (eNSI, STG, STF, ATS, HE, Res, RefObs, Ours)"
-            ),
-        }
-    }
-    Ok(sw)
 }
 
 /// `run.lock.json`: per step key, its hash and whether it finished.
@@ -284,58 +247,4 @@ pub fn hashed_plan(
         table_text(recipe, sets, "sample-stf")
     ));
     plan(cfg, |stage| table_text(recipe, sets, stage), first)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn method_labels_parse_into_switches() {
-        let s = parse_method("SM+Ours", false).unwrap();
-        assert!(s.stg && s.stf && s.ats && s.he && !s.nsi);
-        let p = parse_method("SM+Ours", true).unwrap();
-        assert!(!p.stg && p.stf && p.ats && p.he);
-        let d = parse_method("DM+eNSI", false).unwrap();
-        assert_eq!(d.method, Some(crate::rl::humanoid::Method::Dm));
-        assert!(d.nsi && !d.stf);
-        assert!(parse_method("XM", false).is_err());
-        assert!(parse_method("SM+Magic", false).is_err());
-    }
-
-    #[test]
-    fn every_method_label_parses_back_into_its_switches() {
-        use crate::rl::config::TrainConfig;
-        use crate::rl::humanoid::Method;
-        // every combination of the labelled switches (eNSI shows only
-        // without STF), on both methods
-        for bits in 0u32..(1 << 8) {
-            let on = |k: u32| bits & (1 << k) != 0;
-            let cfg = TrainConfig {
-                method: if on(0) { Method::Dm } else { Method::Sm },
-                nsi: on(1),
-                stg: on(2),
-                stf: on(3),
-                ats: on(4),
-                he: on(5),
-                residual_action: on(6),
-                reference_obs: on(7),
-                ..Default::default()
-            };
-            let label = crate::eval::method_label(&cfg);
-            let mut back = TrainConfig::default();
-            parse_method(&label, false).unwrap().apply(&mut back);
-            assert_eq!(crate::eval::method_label(&back), label);
-            assert_eq!(
-                (back.method, back.stg, back.stf, back.ats, back.he),
-                (cfg.method, cfg.stg, cfg.stf, cfg.ats, cfg.he),
-                "{label}"
-            );
-            assert_eq!(
-                (back.residual_action, back.reference_obs),
-                (cfg.residual_action, cfg.reference_obs),
-                "{label}"
-            );
-        }
-    }
 }

@@ -23,7 +23,7 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
     let switches = cfg
         .methods
         .iter()
-        .map(|m| crate::pipeline::parse_method(m, parahome))
+        .map(|m| crate::eval::parse_method(m, parahome))
         .collect::<Result<Vec<_>>>()?;
     let out = args.out.clone();
     let _lock = common.lock_output("run")?;
