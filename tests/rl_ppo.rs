@@ -410,3 +410,53 @@ fn initial_actions_are_small_and_logp_matches() {
     assert_eq!(st.actions.len(), 24);
     assert_eq!(st.values, det.values);
 }
+
+#[test]
+fn sharded_minibatch_gradients_take_the_same_steps() {
+    // one update from the same rollout, the minibatch gradient computed
+    // whole and in 2 or 3 row shards (3 does not divide 512: unequal
+    // weights): the same steps up to float rounding, and the same losses
+    let mut base = start(5);
+    let ro = collect(
+        &base.agent,
+        &mut base.env,
+        HORIZON,
+        &mut base.tracker,
+        &mut base.rng,
+    )
+    .unwrap();
+    let step_with = |shards: usize| {
+        let cfg = PpoConfig {
+            grad_shards: shards,
+            ..small_cfg()
+        };
+        let mut agent = Agent::new(OBS_DIM, ACT_DIM, &cfg, 5, &Device::Cpu).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let st = agent.update(&ro, &mut rng).unwrap();
+        (agent.weights().unwrap(), st)
+    };
+    let (w1, s1) = step_with(1);
+    let init = Agent::new(OBS_DIM, ACT_DIM, &small_cfg(), 5, &Device::Cpu)
+        .unwrap()
+        .weights()
+        .unwrap();
+    for shards in [2, 3] {
+        let (w, s) = step_with(shards);
+        let (mut moved, mut worst) = (0f64, 0f64);
+        for (((name, a), (_, b)), (_, w0)) in w1.iter().zip(&w).zip(&init) {
+            for ((x, y), x0) in a.iter().zip(b).zip(w0) {
+                moved = moved.max((x - x0).abs() as f64);
+                worst = worst.max((x - y).abs() as f64);
+                assert!(x.is_finite() && y.is_finite(), "{name}");
+            }
+        }
+        assert!(moved > 1e-4, "the update moved the weights by {moved}");
+        assert!(
+            worst < 1e-3 * moved,
+            "{shards} shards: weights differ by {worst} (the update moved them {moved})"
+        );
+        assert!((s.policy_loss - s1.policy_loss).abs() < 1e-4 * (1.0 + s1.policy_loss.abs()));
+        assert!((s.value_loss - s1.value_loss).abs() < 1e-4 * (1.0 + s1.value_loss.abs()));
+        assert!((s.clip_frac - s1.clip_frac).abs() < 1e-3);
+    }
+}
