@@ -51,7 +51,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // residual actions with a lead, the reference observation and seam
     // blends; the grace after seams is set too, but without early
     // termination it only keeps its seam bookkeeping (its effect is tested
-    // in a_grace_after_seams_keeps_the_key_point_rule_off_...)
+    // in a_grace_after_seams_keeps_the_key_point_rule_off_...), sharded
+    // minibatch gradients and clips left early at their best seams
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -77,6 +78,10 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.ppo.kl_threshold=0.008",
             "--set",
             "train.ppo.normalize_value=true",
+            "--set",
+            "train.ppo.grad_shards=2",
+            "--set",
+            "train.seam_leave_search_s=0.5",
         ],
     );
 }
@@ -848,4 +853,53 @@ fn the_warm_start_fits_the_next_reference_pose() {
         .unwrap();
     eprintln!("warm start: action mse {before:.4} -> {after:.4}");
     assert!(after < 0.5 * before, "{before} -> {after}");
+}
+
+#[test]
+fn clips_left_early_loop_where_their_seams_are_more_similar() {
+    let (_dir, run) = ingested("ballplay");
+    let base = TrainConfig {
+        skills: vec!["run".into(), "rrun".into()],
+        ..TrainConfig::default()
+    };
+    let cut = TrainConfig {
+        seam_leave_search_s: 0.67,
+        ..base.clone()
+    };
+    let (s0, s1) = (setup_for(&run, &base), setup_for(&run, &cut));
+    let search = (0.67f64 * s0.lib.clips[0].fps as f64).round() as usize;
+    let mut better = 0;
+    for c in 0..s0.lib.clips.len() {
+        let (f0, f1) = (&s0.lib.frames[c], &s1.lib.frames[c]);
+        if !s0.clips.contains(&c) {
+            // a clip that is not trained is never cut
+            assert_eq!(f1.frames, f0.frames, "{}", s0.lib.clips[c].name);
+            continue;
+        }
+        let (a, b) = (s0.seams[c].unwrap(), s1.seams[c].unwrap());
+        let name = &s0.lib.clips[c].name;
+        assert!(
+            f1.frames <= f0.frames && f1.frames + search >= f0.frames,
+            "{name}: cut to {} of {} frames",
+            f1.frames,
+            f0.frames
+        );
+        assert_eq!(s1.lib.clips[c].frames as usize, f1.frames);
+        // the cut clip ends where it is left, and it is left at a seam at
+        // least as similar as its end's
+        assert_eq!(b.last as usize, f1.last_valid().unwrap(), "{name}");
+        assert!(
+            b.beta >= a.beta - 1e-12,
+            "{name}: beta {} < {}",
+            b.beta,
+            a.beta
+        );
+        better += (b.beta > a.beta + 0.05) as usize;
+        // the kept frames are the clip's own, bit for bit
+        assert_eq!(f1.joint_rot[..], f0.joint_rot[..f1.joint_rot.len()]);
+    }
+    assert!(
+        better >= 2,
+        "only {better} seams became clearly more similar"
+    );
 }

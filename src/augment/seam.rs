@@ -77,12 +77,91 @@ pub fn seams(lib: &MotionLib, w: &Weights, min_loop: usize) -> Vec<Option<Seam>>
         .collect()
 }
 
+/// For every clip, the frame L' at which training leaves it: among the
+/// valid frames of its last `search` frames (the last frame included),
+/// the one whose seam is most similar (the best S_k over the skill's
+/// frames, aligned as in [`seams`], a frame of the clip itself at least
+/// `min_loop` frames before L', a frame of another clip at least
+/// `min_loop` frames before the earliest frame that clip may be cut at, so
+/// that [`seams`] of the cut clips finds a seam at least as similar); the
+/// last valid frame where no frame does better or `search` is 0. Cutting a clip at L' makes a
+/// loop of a periodic motion (a dribble) close where its phases match
+/// instead of wherever the capture stopped.
+pub fn leave_frames(lib: &MotionLib, w: &Weights, min_loop: usize, search: usize) -> Vec<usize> {
+    (0..lib.clips.len())
+        .map(|c| {
+            let Some(last) = lib.frames[c].last_valid() else {
+                return 0;
+            };
+            let mut best = (last, f64::NEG_INFINITY);
+            for leave in (last.saturating_sub(search)..=last).rev() {
+                let Some(end) = lib.state(c, leave) else {
+                    continue;
+                };
+                let mut top = f64::NEG_INFINITY;
+                for c2 in lib.clips_of(&lib.clips[c].skill) {
+                    let Some(last2) = lib.frames[c2].last_valid() else {
+                        continue;
+                    };
+                    // another clip may be cut too: only its frames that
+                    // every cut keeps count, so the seam found here stays
+                    let bound = if c2 == c {
+                        leave
+                    } else {
+                        last2.saturating_sub(search)
+                    };
+                    for (f, ok) in start_frames(&lib.frames[c2]).iter().enumerate() {
+                        if !*ok || f + min_loop > bound {
+                            continue;
+                        }
+                        let Some(s) = lib.state(c2, f) else { continue };
+                        let beta = reward::similarity(&end, &s, lib.skeleton, w, Align::default());
+                        top = top.max(beta);
+                    }
+                }
+                if top > best.1 {
+                    best = (leave, top);
+                }
+            }
+            best.0
+        })
+        .collect()
+}
+
+/// A shortest loop of `min_loop_s` seconds at `fps` frames per second, in
+/// frames (at least one).
+pub fn min_loop_frames(min_loop_s: f64, fps: f64) -> usize {
+    ((min_loop_s * fps).ceil() as usize).max(1)
+}
+
+/// Cut each clip of `clips` after the frame at which training leaves it
+/// ([`leave_frames`] with the library's SM weights over the last
+/// `search_s` seconds at `fps`; a shortest loop of `min_loop_s` seconds):
+/// its later frames are dropped, its row's frame counts follow.
+pub fn cut_at_leave_frames(
+    lib: &mut MotionLib,
+    clips: &[usize],
+    min_loop_s: f64,
+    search_s: f64,
+    fps: f64,
+) {
+    let w = Weights::sm(reward::DatasetKind::of_library(lib));
+    let search = (search_s * fps).round() as usize;
+    let leave = leave_frames(lib, &w, min_loop_frames(min_loop_s, fps), search);
+    for &c in clips {
+        let f = &mut lib.frames[c];
+        f.truncate(leave[c] + 1);
+        lib.clips[c].frames = f.frames as u32;
+        lib.clips[c].valid_frames = f.valid_frames() as u32;
+    }
+}
+
 /// The seams training uses: [`seams`] with the library's SM weights (the
 /// dataset's, [`Weights::sm`]) and a shortest loop of `min_loop_s` seconds
-/// at `fps` frames per second (at least one frame). Returns the seams and
+/// at `fps` frames per second ([`min_loop_frames`]). Returns the seams and
 /// that loop length in frames.
 pub fn training_seams(lib: &MotionLib, min_loop_s: f64, fps: f64) -> (Vec<Option<Seam>>, usize) {
-    let min_loop = ((min_loop_s * fps).ceil() as usize).max(1);
+    let min_loop = min_loop_frames(min_loop_s, fps);
     let w = Weights::sm(reward::DatasetKind::of_library(lib));
     (seams(lib, &w, min_loop), min_loop)
 }

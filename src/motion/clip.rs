@@ -158,6 +158,39 @@ pub struct ClipFrames {
 }
 
 impl ClipFrames {
+    /// Keep the first `n` frames (no change when the clip has at most `n`).
+    pub fn truncate(&mut self, n: usize) {
+        if n >= self.frames {
+            return;
+        }
+        let f = self.frames;
+        let cut = |v: &mut Vec<f32>| {
+            let width = v.len() / f;
+            v.truncate(n * width);
+        };
+        for v in [
+            &mut self.root_pos,
+            &mut self.root_rot,
+            &mut self.root_rot_expmap,
+            &mut self.root_linvel,
+            &mut self.root_angvel,
+            &mut self.joint_rot,
+            &mut self.joint_vel,
+            &mut self.body_pos,
+            &mut self.body_vel,
+            &mut self.obj_pos,
+            &mut self.obj_rot,
+            &mut self.obj_rot_expmap,
+            &mut self.obj_linvel,
+            &mut self.obj_angvel,
+        ] {
+            cut(v);
+        }
+        self.valid.truncate(n);
+        self.contact.truncate(n);
+        self.frames = n;
+    }
+
     /// The last valid frame (`None` when no frame is valid).
     pub fn last_valid(&self) -> Option<usize> {
         (0..self.frames).rev().find(|f| self.valid[*f])

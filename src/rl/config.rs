@@ -190,6 +190,17 @@ pub struct TrainConfig {
     /// applies at every step). Not written when 0.
     #[serde(skip_serializing_if = "is_zero_usize")]
     pub term_grace_steps: usize,
+    /// With continuation: a clip may be left up to this many seconds before
+    /// its last valid frame, at the frame whose seam is most similar (the
+    /// frames after it are dropped from training and evaluation;
+    /// [`crate::augment::seam::leave_frames`]); 0 = every clip is left at
+    /// its last frame. Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_f64")]
+    pub seam_leave_search_s: f64,
+}
+
+fn is_zero_f64(x: &f64) -> bool {
+    *x == 0.0
 }
 
 fn is_zero_usize(x: &usize) -> bool {
@@ -294,6 +305,7 @@ impl Default for TrainConfig {
             feed_forward_lead: 0.0,
             seam_blend_steps: 0,
             term_grace_steps: 0,
+            seam_leave_search_s: 0.0,
         }
     }
 }
@@ -358,6 +370,7 @@ impl crate::config::Validate for TrainConfig {
         c.range("feed_forward_lead", self.feed_forward_lead as f64, 0.0, 5.0)?;
         c.count("seam_blend_steps", self.seam_blend_steps as u64, 0, 1000)?;
         c.count("term_grace_steps", self.term_grace_steps as u64, 0, 100_000)?;
+        c.range("seam_leave_search_s", self.seam_leave_search_s, 0.0, 60.0)?;
         c.count("num_envs", self.envs() as u64, 1, 1 << 20)?;
         c.count("horizon", self.steps() as u64, 1, 1 << 20)?;
         c.count("samples", self.samples, 1, u64::MAX)?;

@@ -139,8 +139,13 @@ impl Setup {
         }
         let objects = objects::load_all(&first.objects, &root)?;
         let sim = SimOptions::for_fps(first.fps as f64);
-        let (seams, _) =
-            crate::augment::seam::training_seams(&lib, cfg.seam_min_loop_s, first.fps as f64);
+        let fps = first.fps as f64;
+        let (lib, edges) = if cfg.seam_leave_search_s > 0.0 {
+            leave_early(lib, edges, &clips, cfg, fps)
+        } else {
+            (lib, edges)
+        };
+        let (seams, _) = crate::augment::seam::training_seams(&lib, cfg.seam_min_loop_s, fps);
         Ok(Setup {
             seams,
             fk: stf_cfg.fk,
@@ -163,6 +168,32 @@ impl Setup {
             .filter(|sk| self.clips.iter().any(|c| self.lib.clips[*c].skill == *sk))
             .collect()
     }
+}
+
+/// `lib` with each trained clip of `clips` cut after the frame at which
+/// training leaves it ([`crate::augment::seam::cut_at_leave_frames`]
+/// within `cfg.seam_leave_search_s` of its end, at `fps`), and the STG
+/// edges that still fit the cut clips.
+fn leave_early(
+    mut lib: MotionLib,
+    edges: Vec<crate::augment::stg::Edge>,
+    clips: &[usize],
+    cfg: &TrainConfig,
+    fps: f64,
+) -> (MotionLib, Vec<crate::augment::stg::Edge>) {
+    crate::augment::seam::cut_at_leave_frames(
+        &mut lib,
+        clips,
+        cfg.seam_min_loop_s,
+        cfg.seam_leave_search_s,
+        fps,
+    );
+    let fits = |c: u32, f: u32| (f as usize) < lib.frames[c as usize].frames;
+    let edges = edges
+        .into_iter()
+        .filter(|e| fits(e.src_clip, e.src_frame) && fits(e.dst_clip, e.dst_frame))
+        .collect();
+    (lib, edges)
 }
 
 /// The STF parameters of `cfg`'s switches over the recipe's `base`.

@@ -2,7 +2,9 @@
 //! carries an episode past the clip's end ([`crate::augment::seam`]): per
 //! clip its last valid frame, the most similar frame of the same skill
 //! (root x, y and heading aligned), the similarity β and the masked states
-//! N that Eq. 20 puts at the seam (`[sample-stf]` τ, N_max and rule).
+//! N that Eq. 20 puts at the seam (`[sample-stf]` τ, N_max and rule). With
+//! `train.seam_leave_search_s` the clips are first cut where training
+//! leaves them, and `last` is that frame.
 
 use super::Common;
 use crate::augment::{n_masked, seam};
@@ -13,8 +15,18 @@ pub fn run(common: &Common) -> Result<()> {
     let cfg: crate::rl::config::TrainConfig = common.settings("train")?;
     let stf: crate::augment::settings::StfConfig = common.settings("sample-stf")?;
     let (p, _) = stf.params()?;
-    let lib = crate::table::load_library(common.input_dir())?;
+    let mut lib = crate::table::load_library(common.input_dir())?;
     let fps = lib.clips.first().map_or(60.0, |c| c.fps as f64);
+    if cfg.seam_leave_search_s > 0.0 {
+        let all: Vec<usize> = (0..lib.clips.len()).collect();
+        seam::cut_at_leave_frames(
+            &mut lib,
+            &all,
+            cfg.seam_min_loop_s,
+            cfg.seam_leave_search_s,
+            fps,
+        );
+    }
     let (seams, min_loop) = seam::training_seams(&lib, cfg.seam_min_loop_s, fps);
     println!(
         "{:<16} {:<34} {:>5}   {:<34} {:>5} {:>10} {:>3}",
