@@ -51,8 +51,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // residual actions with a lead, the reference observation and seam
     // blends; the grace after seams is set too, but without early
     // termination it only keeps its seam bookkeeping (its effect is tested
-    // in a_grace_after_seams_keeps_the_key_point_rule_off_...), sharded
-    // minibatch gradients and clips left early at their best seams
+    // in a_grace_after_seams_keeps_the_key_point_rule_off_...) and clips
+    // left early at their best seams
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -78,8 +78,6 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.ppo.kl_threshold=0.008",
             "--set",
             "train.ppo.normalize_value=true",
-            "--set",
-            "train.ppo.grad_shards=2",
             "--set",
             "train.seam_leave_search_s=0.5",
         ],

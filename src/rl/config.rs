@@ -249,10 +249,6 @@ pub struct PpoOverrides {
     pub normalize_value: Option<bool>,
     /// Adaptive learning rate around this KL ([`PpoConfig::kl_threshold`]).
     pub kl_threshold: Option<f64>,
-    /// Row shards per minibatch gradient ([`PpoConfig::grad_shards`]);
-    /// not written when unset.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub grad_shards: Option<usize>,
     /// Policy head weights drawn from U(-b, b) ([`PpoConfig::policy_out_bound`];
     /// default 0.01); 0 = PyTorch's default `Linear` initialisation, as
     /// SkillMimic's released code. Not written when unset.
@@ -349,8 +345,7 @@ impl TrainConfig {
             critic_coef,
             bounds_coef,
             norm_after_update,
-            normalize_value,
-            grad_shards
+            normalize_value
         );
         if o.kl_threshold.is_some() {
             c.kl_threshold = o.kl_threshold;

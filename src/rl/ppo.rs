@@ -68,53 +68,6 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-fn is_one(n: &usize) -> bool {
-    *n == 1
-}
-
-/// One minibatch's rows as tensors (observations raw: normalised inside
-/// the networks' first layer).
-struct MinibatchRows<'a> {
-    x: &'a Tensor,
-    act: &'a Tensor,
-    old_logp: &'a Tensor,
-    old_v: &'a Tensor,
-    adv: &'a Tensor,
-    ret: &'a Tensor,
-}
-
-/// [`Agent::minibatch_loss`]: scalar tensors and the per-row log-ratio.
-struct MinibatchLoss {
-    policy: Tensor,
-    value: Tensor,
-    bounds: Tensor,
-    total: Tensor,
-    log_ratio: Tensor,
-}
-
-/// A minibatch's gradient (one per variable) and its losses as numbers.
-struct MinibatchGrads {
-    grads: Vec<Option<Tensor>>,
-    policy: f64,
-    value: f64,
-    bounds: f64,
-    total: f64,
-    log_ratio: Vec<f32>,
-}
-
-impl MinibatchGrads {
-    fn of(l: MinibatchLoss, grads: Vec<Option<Tensor>>) -> Result<MinibatchGrads> {
-        Ok(MinibatchGrads {
-            grads,
-            policy: l.policy.to_scalar::<f32>()? as f64,
-            value: l.value.to_scalar::<f32>()? as f64,
-            bounds: l.bounds.to_scalar::<f32>()? as f64,
-            total: l.total.to_scalar::<f32>()? as f64,
-            log_ratio: l.log_ratio.to_vec1::<f32>()?,
-        })
-    }
-}
-
 /// PPO hyper-parameters (SkillMimic defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -175,15 +128,6 @@ pub struct PpoConfig {
     pub lr_min: f64,
     /// Upper bound of the adaptive rate.
     pub lr_max: f64,
-    /// Each minibatch's gradient is computed in this many row shards in
-    /// parallel (rayon) and summed with weights rows/minibatch: the same
-    /// gradient of the same mean loss, in another order of float sums. On
-    /// a CPU each shard's small matrix products and element-wise passes
-    /// run on one core instead of splitting every operation over all of
-    /// them (`docs/training.md`, "A learner that keeps up"). Not written
-    /// when 1.
-    #[serde(skip_serializing_if = "is_one")]
-    pub grad_shards: usize,
 }
 
 impl Default for PpoConfig {
@@ -211,7 +155,6 @@ impl Default for PpoConfig {
             kl_threshold: None,
             lr_min: 1e-6,
             lr_max: 1e-2,
-            grad_shards: 1,
         }
     }
 }
@@ -244,7 +187,6 @@ impl PpoConfig {
             self.hidden.iter().all(|&h| h > 0),
             "ppo: hidden sizes must be > 0"
         );
-        ensure!(self.grad_shards > 0, "ppo: grad_shards must be > 0");
         Ok(())
     }
 }
@@ -304,22 +246,19 @@ impl Adam {
     }
 }
 
-/// The gradient of every variable of `vars` in `store` (`None` where the
-/// loss does not depend on it).
-fn grads_of(
-    vars: &[(String, Var)],
-    store: &candle_core::backprop::GradStore,
-) -> Vec<Option<Tensor>> {
-    vars.iter()
-        .map(|(_, v)| store.get(v.as_tensor()).cloned())
-        .collect()
-}
-
-/// The gradients `gs` (one per variable, `None` where the loss does not
+/// The gradient of every variable of `vars` (`None` where the loss does not
 /// depend on it), averaged over the ranks of `comm`: one all-reduce of the
 /// concatenated gradients per minibatch, as MPI Adam does (see
 /// [`super::comm`]). With one rank the gradients are returned untouched.
-fn rank_mean_grads(mut gs: Vec<Option<Tensor>>, comm: &dyn Comm) -> Result<Vec<Option<Tensor>>> {
+fn rank_mean_grads(
+    vars: &[(String, Var)],
+    grads: &candle_core::backprop::GradStore,
+    comm: &dyn Comm,
+) -> Result<Vec<Option<Tensor>>> {
+    let mut gs: Vec<Option<Tensor>> = vars
+        .iter()
+        .map(|(_, v)| grads.get(v.as_tensor()).cloned())
+        .collect();
     if comm.size() > 1 {
         let mut flat = Vec::new();
         for g in gs.iter().flatten() {
@@ -901,23 +840,35 @@ impl Agent {
                 let ov = old_v.index_select(&idx, 0)?;
                 let ad = adv.index_select(&idx, 0)?;
                 let rt = ret.index_select(&idx, 0)?;
-                let rows = MinibatchRows {
-                    x: &x,
-                    act: &a,
-                    old_logp: &olp,
-                    old_v: &ov,
-                    adv: &ad,
-                    ret: &rt,
-                };
-                let shards = self.cfg.grad_shards.clamp(1, chunk.len());
-                let mb = if shards == 1 {
-                    let l = self.minibatch_loss(&rows, logc, critic_only)?;
-                    let grads = grads_of(&self.vars, &l.total.backward()?);
-                    MinibatchGrads::of(l, grads)?
+                let mu = self.pi.forward_const_input(&x)?;
+                let z = (a - &mu)?.affine(1.0 / self.std, 0.0)?;
+                let logp = z.sqr()?.sum(D::Minus1)?.affine(-0.5, -logc)?;
+                let log_ratio = (logp - &olp)?.clamp(-20f32, 20f32)?;
+                let ratio = log_ratio.exp()?;
+                let s1 = ratio.mul(&ad)?;
+                let s2 = ratio.clamp(1.0 - eps, 1.0 + eps)?.mul(&ad)?;
+                let pl = s1.minimum(&s2)?.mean_all()?.neg()?;
+                let v = self.vf.forward_const_input(&x)?.squeeze(D::Minus1)?;
+                let vl = if self.cfg.clip_value {
+                    let vc = (&ov + (&v - &ov)?.clamp(-eps, eps)?)?;
+                    (&v - &rt)?
+                        .sqr()?
+                        .maximum(&(vc - &rt)?.sqr()?)?
+                        .mean_all()?
                 } else {
-                    self.sharded_grads(&rows, shards, logc, critic_only)?
+                    (&v - &rt)?.sqr()?.mean_all()?
                 };
-                let grads = rank_mean_grads(mb.grads, comm)?;
+                let soft = self.cfg.bounds_soft;
+                let hi = mu.affine(1.0, -soft)?.relu()?.sqr()?;
+                let lo = mu.affine(-1.0, -soft)?.relu()?.sqr()?;
+                let bl = (hi + lo)?.sum(D::Minus1)?.mean_all()?;
+                let total = if critic_only {
+                    vl.affine(self.cfg.critic_coef, 0.0)?
+                } else {
+                    ((&pl + vl.affine(self.cfg.critic_coef, 0.0)?)?
+                        + bl.affine(self.cfg.bounds_coef, 0.0)?)?
+                };
+                let grads = rank_mean_grads(&self.vars, &total.backward()?, comm)?;
                 self.adam.apply(
                     &self.vars,
                     &grads,
@@ -925,9 +876,7 @@ impl Agent {
                     self.cfg.adam_eps,
                     critic_only,
                 )?;
-                let (pl, vl, bl, total, log_ratio) =
-                    (mb.policy, mb.value, mb.bounds, mb.total, mb.log_ratio);
-                let lr_v = log_ratio;
+                let lr_v = log_ratio.to_vec1::<f32>()?;
                 let n = lr_v.len() as f64;
                 stats.clip_frac += lr_v
                     .iter()
@@ -938,10 +887,10 @@ impl Agent {
                 stats.approx_kl += kl;
                 epoch_kl += kl;
                 epoch_n += 1;
-                stats.policy_loss += pl;
-                stats.value_loss += vl;
-                stats.bounds_loss += bl;
-                stats.total_loss += total;
+                stats.policy_loss += pl.to_scalar::<f32>()? as f64;
+                stats.value_loss += vl.to_scalar::<f32>()? as f64;
+                stats.bounds_loss += bl.to_scalar::<f32>()? as f64;
+                stats.total_loss += total.to_scalar::<f32>()? as f64;
                 stats.steps += 1;
             }
             if let (Some(k), false) = (self.cfg.kl_threshold, critic_only) {
@@ -985,121 +934,6 @@ impl Agent {
         }
         stats.lr = self.lr_now;
         Ok(stats)
-    }
-
-    /// PPO's losses on one minibatch (or shard) of rows: the clipped
-    /// surrogate, the value loss, the bounds loss, their weighted total and
-    /// the per-row log-ratio, each a mean over the rows.
-    fn minibatch_loss(
-        &self,
-        r: &MinibatchRows<'_>,
-        logc: f64,
-        critic_only: bool,
-    ) -> Result<MinibatchLoss> {
-        let eps = self.cfg.clip;
-        let mu = self.pi.forward_const_input(r.x)?;
-        let z = (r.act - &mu)?.affine(1.0 / self.std, 0.0)?;
-        let logp = z.sqr()?.sum(D::Minus1)?.affine(-0.5, -logc)?;
-        let log_ratio = (logp - r.old_logp)?.clamp(-20f32, 20f32)?;
-        let ratio = log_ratio.exp()?;
-        let s1 = ratio.mul(r.adv)?;
-        let s2 = ratio.clamp(1.0 - eps, 1.0 + eps)?.mul(r.adv)?;
-        let pl = s1.minimum(&s2)?.mean_all()?.neg()?;
-        let v = self.vf.forward_const_input(r.x)?.squeeze(D::Minus1)?;
-        let vl = if self.cfg.clip_value {
-            let vc = (r.old_v + (&v - r.old_v)?.clamp(-eps, eps)?)?;
-            (&v - r.ret)?
-                .sqr()?
-                .maximum(&(vc - r.ret)?.sqr()?)?
-                .mean_all()?
-        } else {
-            (&v - r.ret)?.sqr()?.mean_all()?
-        };
-        let soft = self.cfg.bounds_soft;
-        let hi = mu.affine(1.0, -soft)?.relu()?.sqr()?;
-        let lo = mu.affine(-1.0, -soft)?.relu()?.sqr()?;
-        let bl = (hi + lo)?.sum(D::Minus1)?.mean_all()?;
-        let total = if critic_only {
-            vl.affine(self.cfg.critic_coef, 0.0)?
-        } else {
-            ((&pl + vl.affine(self.cfg.critic_coef, 0.0)?)?
-                + bl.affine(self.cfg.bounds_coef, 0.0)?)?
-        };
-        Ok(MinibatchLoss {
-            policy: pl,
-            value: vl,
-            bounds: bl,
-            total,
-            log_ratio,
-        })
-    }
-
-    /// The minibatch's gradient as `shards` contiguous row shards computed
-    /// in parallel, each shard's gradient weighted by its share of the rows
-    /// and summed in shard order (the mean loss's gradient); the losses are
-    /// combined with the same weights.
-    fn sharded_grads(
-        &self,
-        r: &MinibatchRows<'_>,
-        shards: usize,
-        logc: f64,
-        critic_only: bool,
-    ) -> Result<MinibatchGrads> {
-        use rayon::prelude::*;
-        let n = r.x.dim(0)?;
-        let bounds: Vec<(usize, usize)> = (0..shards)
-            .map(|k| (k * n / shards, (k + 1) * n / shards))
-            .collect();
-        let parts: Vec<Result<MinibatchGrads>> = bounds
-            .par_iter()
-            .map(|&(a, b)| -> Result<MinibatchGrads> {
-                let len = b - a;
-                let rows = MinibatchRows {
-                    x: &r.x.narrow(0, a, len)?,
-                    act: &r.act.narrow(0, a, len)?,
-                    old_logp: &r.old_logp.narrow(0, a, len)?,
-                    old_v: &r.old_v.narrow(0, a, len)?,
-                    adv: &r.adv.narrow(0, a, len)?,
-                    ret: &r.ret.narrow(0, a, len)?,
-                };
-                let l = self.minibatch_loss(&rows, logc, critic_only)?;
-                let w = len as f64 / n as f64;
-                let store = l.total.backward()?;
-                let grads = self
-                    .vars
-                    .iter()
-                    .map(|(_, v)| {
-                        store
-                            .get(v.as_tensor())
-                            .map(|g| g.affine(w, 0.0))
-                            .transpose()
-                    })
-                    .collect::<candle_core::Result<Vec<_>>>()?;
-                let mut out = MinibatchGrads::of(l, grads)?;
-                out.policy *= w;
-                out.value *= w;
-                out.bounds *= w;
-                out.total *= w;
-                Ok(out)
-            })
-            .collect();
-        let mut parts = parts.into_iter();
-        let mut sum = parts.next().context("ppo: a minibatch without shards")??;
-        for p in parts {
-            let p = p?;
-            for (g, h) in sum.grads.iter_mut().zip(p.grads) {
-                *g = match (g.take(), h) {
-                    (Some(g), Some(h)) => Some((g + h)?),
-                    (g, h) => g.or(h),
-                };
-            }
-            sum.policy += p.policy;
-            sum.value += p.value;
-            sum.bounds += p.bounds;
-            sum.total += p.total;
-            sum.log_ratio.extend(p.log_ratio);
-        }
-        Ok(sum)
     }
 
     /// Behaviour cloning of the policy mean: merge `obs` (raw, `N *
@@ -1155,7 +989,7 @@ impl Agent {
                 let idx = Tensor::from_slice(chunk, chunk.len(), &dev)?;
                 let mu = self.pi.forward_const_input(&x.index_select(&idx, 0)?)?;
                 let loss = (mu - y.index_select(&idx, 0)?)?.sqr()?.mean_all()?;
-                let grads = rank_mean_grads(grads_of(&self.vars, &loss.backward()?), comm)?;
+                let grads = rank_mean_grads(&self.vars, &loss.backward()?, comm)?;
                 adam.apply(&self.vars, &grads, lr, self.cfg.adam_eps, true)?;
             }
         }

@@ -162,19 +162,17 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
         "update us/samp",
         rayon::current_num_threads()
     );
-    for (name, preset, envs, shards) in [
-        ("cpu (128 x 32, mb 2048)", Preset::Cpu, None, None),
-        ("cpu, grad_shards = 2", Preset::Cpu, None, Some(2)),
-        ("paper nets (1024-512-512)", Preset::Paper, Some(512), None),
+    for (name, preset, envs) in [
+        ("cpu (128 x 32, mb 2048)", Preset::Cpu, None),
+        ("paper nets (1024-512-512)", Preset::Paper, Some(512)),
     ] {
-        let mut cfg = TrainConfig {
+        let cfg = TrainConfig {
             skills: vec!["run".into()],
             preset,
             num_envs: envs,
             horizon: Some(32),
             ..TrainConfig::default()
         };
-        cfg.ppo.grad_shards = shards;
         let s = Setup::load(&out, data_root.as_deref(), &cfg, &StfConfig::default())?;
         let t = time_iterations(&s, &cfg, repeat)?;
         println!(
