@@ -570,7 +570,7 @@ fn bvh_and_gltf_hold_the_last_posture_over_missing_frames() {
     let trajs = skillaug::table::stf::read_trajectories(&stf).unwrap();
     let t = trajs
         .iter()
-        .find(|t| t.steps.iter().any(|(_, r)| r.is_none()))
+        .find(|t| t.steps.iter().any(|st| st.reference.is_none()))
         .expect("a trajectory with missing frames");
     let id = t.traj_id.to_string();
     let bvh = dir.path().join("b");
@@ -599,8 +599,8 @@ fn bvh_and_gltf_hold_the_last_posture_over_missing_frames() {
         .collect();
     assert_eq!(lines.len(), 1 + t.steps.len());
     let mut held = 0;
-    for (k, (_, r)) in t.steps.iter().enumerate() {
-        if r.is_none() {
+    for (k, st) in t.steps.iter().enumerate() {
+        if st.reference.is_none() {
             assert_eq!(
                 lines[k + 1],
                 lines[k],
@@ -633,8 +633,8 @@ fn bvh_and_gltf_hold_the_last_posture_over_missing_frames() {
         .as_u64()
         .unwrap() as usize;
     let key = |k: usize| &bin[off + 12 * k..off + 12 * k + 12];
-    for (k, (_, r)) in t.steps.iter().enumerate() {
-        if r.is_none() {
+    for (k, st) in t.steps.iter().enumerate() {
+        if st.reference.is_none() {
             assert_eq!(key(k + 1), key(k));
         }
     }

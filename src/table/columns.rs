@@ -228,8 +228,11 @@ impl CellValue for Vec<f32> {
 pub struct Column<R> {
     /// Name, Arrow type, nullability and meaning.
     pub spec: ColumnSpec,
-    array: Box<dyn Fn(&[R]) -> ArrayRef>,
+    array: ColumnArray<R>,
 }
+
+/// How a [`Column`] turns a table's rows into its array.
+type ColumnArray<R> = Box<dyn Fn(&[R]) -> ArrayRef>;
 
 impl<R: 'static> Column<R> {
     /// The column `name` (meaning `doc`) whose value in a row is `get(row)`;
