@@ -2,10 +2,7 @@
 
 use crate::nn::DeviceName;
 use crate::rl::humanoid::Method;
-use clap::builder::{PossibleValue, TypedValueParser};
-use clap::error::ErrorKind;
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use std::ffi::OsStr;
 use std::path::PathBuf;
 
 /// skillaug: robust interaction skills from sparse, noisy demonstrations.
@@ -127,47 +124,8 @@ pub struct InspectArgs {
 /// `skillaug schema`.
 #[derive(Debug, Args)]
 pub struct SchemaArgs {
-    /// Table name: clips, frames, stg_edges, stg_summary, stf_samples,
-    /// train_metrics, he_loss, he_embeddings, eval_trials, eval_summary or
-    /// eval_rollouts.
-    #[arg(value_parser = TableName, hide_possible_values = true)]
-    pub name: String,
-}
-
-/// The value parser of `schema NAME`: one of [`crate::table::TABLES`]
-/// (offered to shell completion; not listed in the help, and an unknown
-/// name is answered with the list).
-#[derive(Clone, Copy, Debug)]
-struct TableName;
-
-impl TypedValueParser for TableName {
-    type Value = String;
-
-    fn parse_ref(
-        &self,
-        cmd: &clap::Command,
-        _arg: Option<&clap::Arg>,
-        value: &OsStr,
-    ) -> Result<String, clap::Error> {
-        let name = value.to_string_lossy();
-        match crate::table::TABLES.iter().find(|t| **t == name) {
-            Some(t) => Ok(t.to_string()),
-            None => Err(clap::Error::raw(
-                ErrorKind::InvalidValue,
-                format!(
-                    "unknown table `{name}` (known: {})\n",
-                    crate::table::TABLES.join(", ")
-                ),
-            )
-            .with_cmd(cmd)),
-        }
-    }
-
-    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
-        Some(Box::new(
-            crate::table::TABLES.iter().map(PossibleValue::new),
-        ))
-    }
+    /// Table name.
+    pub name: crate::table::Table,
 }
 
 /// The value parser of `--device`: a [`DeviceName`] (whether this build
@@ -434,17 +392,19 @@ mod tests {
 
     #[test]
     fn schema_takes_the_known_tables_and_lists_them_for_others() {
-        for t in crate::table::TABLES {
-            let Command::Schema(a) = parse(&["schema", t]).unwrap().command else {
+        for t in crate::table::Table::ALL {
+            let Command::Schema(a) = parse(&["schema", t.name()]).unwrap().command else {
                 panic!("not schema");
             };
-            assert_eq!(a.name, *t);
+            assert_eq!(a.name, t);
         }
         let e = parse(&["schema", "nope"]).unwrap_err();
-        assert_eq!(e.kind(), ErrorKind::InvalidValue);
-        assert!(e
-            .to_string()
-            .contains("unknown table `nope` (known: clips, frames,"));
+        assert_eq!(e.kind(), clap::error::ErrorKind::InvalidValue);
+        let text = e.to_string();
+        assert!(
+            text.contains("'nope'") && text.contains("clips, frames, stg_edges"),
+            "{text}"
+        );
     }
 
     #[test]

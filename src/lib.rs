@@ -93,7 +93,10 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::CheckContact(a) => stage::check_contact::run(&stage::Common::new(a)?),
         Command::Seams(a) => stage::seams::run(&stage::Common::new(a)?),
         Command::Inspect(a) => stage::inspect::run(&a.file),
-        Command::Schema(a) => stage::schema::run(&a.name),
+        Command::Schema(a) => {
+            stage::schema::run(a.name);
+            Ok(())
+        }
         Command::Export(a) => stage::export::run(&a),
         Command::Bench(a) => stage::bench::run(a.name, a.repeat, a.data_root, &a.set),
     }

@@ -221,6 +221,36 @@ impl CellValue for Vec<f32> {
     }
 }
 
+/// Nullable `FixedSizeList<Float32, N>` (a null row stores N ignored values).
+impl<const N: usize> CellValue for Option<[f32; N]> {
+    const NULLABLE: bool = true;
+    fn data_type() -> DataType {
+        super::f32_fixed(N as i32)
+    }
+    fn array(values: Vec<Self>) -> ArrayRef {
+        let mut b = F32Rows::fixed(N);
+        for row in &values {
+            b.push(row.as_ref().map(|r| &r[..]));
+        }
+        b.finish()
+    }
+}
+
+/// Nullable `List<Float32>`.
+impl CellValue for Option<Vec<f32>> {
+    const NULLABLE: bool = true;
+    fn data_type() -> DataType {
+        super::f32_list()
+    }
+    fn array(values: Vec<Self>) -> ArrayRef {
+        let mut b = F32Rows::list();
+        for row in &values {
+            b.push(row.as_deref());
+        }
+        b.finish()
+    }
+}
+
 /// One column of a table whose rows are `R`: its documentation
 /// ([`ColumnSpec`]) and how its value is read from a row, kept together so
 /// that the schema, the `skillaug schema` text and the written arrays come

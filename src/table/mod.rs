@@ -215,36 +215,83 @@ pub fn load_library(run: &std::path::Path) -> anyhow::Result<crate::motion::Moti
     Ok(lib)
 }
 
-/// Names of the tables `skillaug schema` knows.
-pub const TABLES: &[&str] = &[
-    "clips",
-    "frames",
-    "stg_edges",
-    "stg_summary",
-    "he_loss",
-    "he_embeddings",
-    "stf_samples",
-    "train_metrics",
-    "eval_trials",
-    "eval_summary",
-    "eval_rollouts",
-];
+/// A table skillaug writes (`skillaug schema NAME`): its name is the file
+/// stem (`stg_edges` for `stg_edges.parquet`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[value(rename_all = "snake_case")]
+pub enum Table {
+    /// `clips.parquet`.
+    Clips,
+    /// `frames.parquet`.
+    Frames,
+    /// `stg_edges.parquet`.
+    StgEdges,
+    /// `stg_summary.parquet`.
+    StgSummary,
+    /// `he_loss.parquet`.
+    HeLoss,
+    /// `he_embeddings.parquet`.
+    HeEmbeddings,
+    /// `stf_samples.parquet`.
+    StfSamples,
+    /// `train_metrics.parquet`.
+    TrainMetrics,
+    /// `eval_trials.parquet`.
+    EvalTrials,
+    /// `eval_summary.parquet`.
+    EvalSummary,
+    /// `eval_rollouts.parquet`.
+    EvalRollouts,
+}
 
-/// The columns of table `name`.
-pub fn columns_of(name: &str) -> Option<Vec<ColumnSpec>> {
-    match name {
-        "clips" => Some(clips::columns()),
-        "frames" => Some(frames::columns()),
-        "stg_edges" => Some(stg::columns()),
-        "he_loss" => Some(he::loss_columns()),
-        "he_embeddings" => Some(he::embedding_columns()),
-        "stg_summary" => Some(stg::summary_columns()),
-        "stf_samples" => Some(stf::columns()),
-        "train_metrics" => Some(train::columns()),
-        "eval_trials" => Some(eval::trial_columns()),
-        "eval_summary" => Some(eval::summary_columns()),
-        "eval_rollouts" => Some(rollout::columns()),
-        _ => None,
+impl Table {
+    /// Every table, in the order `skillaug schema` lists them.
+    pub const ALL: [Table; 11] = [
+        Table::Clips,
+        Table::Frames,
+        Table::StgEdges,
+        Table::StgSummary,
+        Table::HeLoss,
+        Table::HeEmbeddings,
+        Table::StfSamples,
+        Table::TrainMetrics,
+        Table::EvalTrials,
+        Table::EvalSummary,
+        Table::EvalRollouts,
+    ];
+
+    /// The name: the file stem and the `skillaug.table` metadata value.
+    pub fn name(self) -> &'static str {
+        match self {
+            Table::Clips => "clips",
+            Table::Frames => "frames",
+            Table::StgEdges => "stg_edges",
+            Table::StgSummary => "stg_summary",
+            Table::HeLoss => "he_loss",
+            Table::HeEmbeddings => "he_embeddings",
+            Table::StfSamples => "stf_samples",
+            Table::TrainMetrics => "train_metrics",
+            Table::EvalTrials => "eval_trials",
+            Table::EvalSummary => "eval_summary",
+            Table::EvalRollouts => "eval_rollouts",
+        }
+    }
+
+    /// The documented columns.
+    pub fn columns(self) -> Vec<ColumnSpec> {
+        match self {
+            Table::Clips => clips::columns(),
+            Table::Frames => frames::columns(),
+            Table::StgEdges => stg::columns(),
+            Table::StgSummary => stg::summary_columns(),
+            Table::HeLoss => he::loss_columns(),
+            Table::HeEmbeddings => he::embedding_columns(),
+            Table::StfSamples => stf::columns(),
+            Table::TrainMetrics => train::columns(),
+            Table::EvalTrials => eval::trial_columns(),
+            Table::EvalSummary => eval::summary_columns(),
+            Table::EvalRollouts => rollout::columns(),
+        }
     }
 }
 
@@ -260,9 +307,9 @@ pub fn type_name(t: &DataType) -> String {
     }
 }
 
-/// The schema text of table `name`: a header, then one field per line.
-pub fn schema_text(name: &str) -> Option<String> {
-    let cols = columns_of(name)?;
+/// The schema text of `table`: a header, then one field per line.
+pub fn schema_text(table: Table) -> String {
+    let (name, cols) = (table.name(), table.columns());
     let mut s = format!(
         "# skillaug table `{name}` (`{name}.parquet`), schema version {SCHEMA_VERSION}\n\
          # name: type, null?  -- meaning\n"
@@ -276,7 +323,7 @@ pub fn schema_text(name: &str) -> Option<String> {
         );
         s.push_str(&format!("{:<w$}: {:<36} -- {}\n", c.name, t, c.doc));
     }
-    Some(s)
+    s
 }
 
 #[cfg(test)]
@@ -284,13 +331,23 @@ mod tests {
     use super::*;
 
     #[test]
+    fn table_names_are_their_clap_values() {
+        use clap::ValueEnum;
+        for t in Table::ALL {
+            assert_eq!(t.to_possible_value().unwrap().get_name(), t.name());
+        }
+        assert_eq!(Table::value_variants().len(), Table::ALL.len());
+    }
+
+    #[test]
     fn schema_golden_files_match() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas");
-        for name in TABLES {
+        for table in Table::ALL {
+            let name = table.name();
             let want = std::fs::read_to_string(dir.join(format!("{name}.txt")))
                 .unwrap_or_else(|e| panic!("schemas/{name}.txt: {e}"));
             assert_eq!(
-                schema_text(name).unwrap(),
+                schema_text(table),
                 want,
                 "schemas/{name}.txt differs from `skillaug schema {name}`: \
                  re-bless with `skillaug schema {name} > schemas/{name}.txt` if the change is intended"

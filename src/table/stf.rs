@@ -5,134 +5,115 @@
 //! optional ATS rewards table (`clip_id`, `frame`, `mean_reward`) and its
 //! check against the clips of a run.
 
-use super::columns::F32Rows;
+use super::columns::{specs, Column, TableRow};
 use super::read_util::col;
-use super::{f32_fixed, f32_list, schema_of, ColumnSpec};
+use super::ColumnSpec;
 use crate::augment::stf::Trajectory;
 use anyhow::{anyhow, bail, Result};
-use arrow::array::{
-    Array, ArrayRef, AsArray, BooleanArray, Float64Array, StringArray, UInt32Array,
-};
+use arrow::array::{Array, AsArray};
 use arrow::datatypes::{
     DataType, Float32Type, Float64Type, Int16Type, Int32Type, Int64Type, Int8Type, UInt16Type,
     UInt32Type, UInt64Type, UInt8Type,
 };
 use arrow::record_batch::RecordBatch;
 use std::path::Path;
-use std::sync::Arc;
+
+/// One row of `stf_samples.parquet`: one step of a sampled trajectory, the
+/// trajectory's values repeated on each of its rows and its start state
+/// on step 0 only.
+struct StfRow {
+    traj_id: u32,
+    step: u32,
+    masked: bool,
+    ref_clip: Option<u32>,
+    ref_frame: Option<u32>,
+    condition: u32,
+    target_skill: String,
+    start_kind: &'static str,
+    fallback: bool,
+    centroid: (u32, u32),
+    beta: f64,
+    n_masked: u32,
+    start: Option<std::sync::Arc<crate::motion::State>>,
+}
+
+impl TableRow for StfRow {
+    /// J = joints, B = bodies, O = objects (as in frames.parquet).
+    /// Quaternions are (x, y, z, w).
+    fn columns() -> Vec<Column<StfRow>> {
+        type R = StfRow;
+        macro_rules! start {
+            ($name:literal, $field:ident, $doc:literal, fixed) => {
+                Column::new($name, $doc, |r: &R| r.start.as_ref().map(|s| s.$field))
+            };
+            ($name:literal, $field:ident, $doc:literal, list) => {
+                Column::new($name, $doc, |r: &R| {
+                    r.start.as_ref().map(|s| s.$field.clone())
+                })
+            };
+        }
+        vec![
+            Column::new("traj_id", "trajectory, 0-based in sampling order", |r: &R| r.traj_id),
+            Column::new("step", "0 = the start state (the reset state, no reward); then one row per policy step, at most the horizon", |r: &R| r.step),
+            Column::new("masked", "no reward at this step: an inserted masked state (ref null) or a missing reference frame (ref set)", |r: &R| r.masked),
+            Column::new("ref_clip", "clip of the reference frame tracked at this step (clips.parquet clip_id); null at step 0 and for inserted masked states", |r: &R| r.ref_clip),
+            Column::new("ref_frame", "frame of the reference frame tracked at this step", |r: &R| r.ref_frame),
+            Column::new("condition", "condition: class id of the target skill A", |r: &R| r.condition),
+            Column::new("target_skill", "skill A the trajectory tracks", |r: &R| r.target_skill.clone()),
+            Column::new("start_kind", "rsi (a frame of A chosen by ATS), stg (an external state through an STG edge), rsi+noise or stg+noise (then drawn from the epsilon-neighbourhood)", |r: &R| r.start_kind),
+            Column::new("fallback", "the sampled start had beta <= tau and was replaced by a plain reference frame of A (start_kind rsi)", |r: &R| r.fallback),
+            Column::new("centroid_clip", "clip of the centroid state before noise: the ATS frame of A (rsi) or the STG edge's source frame (stg)", |r: &R| r.centroid.0),
+            Column::new("centroid_frame", "frame of the centroid state", |r: &R| r.centroid.1),
+            Column::new("beta", "similarity S_k (Eq. 19) of the start and the reference frame it connects to (Eq. 6 argmax); 1 for an unperturbed reference start", |r: &R| r.beta),
+            Column::new("n_masked", "masked states N between start and reference (Eq. 20)", |r: &R| r.n_masked),
+            start!("root_pos", root_pos, "start state (step 0 only): root world position, m", fixed),
+            start!("root_rot", root_rot, "start: root world rotation, unit quaternion (x, y, z, w)", fixed),
+            start!("root_rot_expmap", root_rot_expmap, "start: root world rotation, exp-map, rad", fixed),
+            start!("root_linvel", root_linvel, "start: root linear velocity, m/s", fixed),
+            start!("root_angvel", root_angvel, "start: root angular velocity, rad/s (frame as in frames.parquet)", fixed),
+            start!("joint_rot", joint_rot, "start: [J*3] joint exp-maps, rad", list),
+            start!("joint_vel", joint_vel, "start: [J*3] joint exp-map velocities, rad/s", list),
+            start!("body_pos", body_pos, "start: [B*3] body world positions, m (under noise: stored positions plus the forward-kinematics change, or rigid with the root when sample-stf.fk = false)", list),
+            start!("body_vel", body_vel, "start: [B*3] body linear velocities, m/s", list),
+            start!("obj_pos", obj_pos, "start: [O*3] object positions, m", list),
+            start!("obj_rot", obj_rot, "start: [O*4] object rotations, unit quaternions (x, y, z, w)", list),
+            start!("obj_linvel", obj_linvel, "start: [O*3] object linear velocities, m/s", list),
+            start!("obj_angvel", obj_angvel, "start: [O*3] object angular velocities, rad/s", list),
+        ]
+    }
+}
 
 /// The documented columns. J = joints, B = bodies, O = objects (as in
 /// frames.parquet). Quaternions are (x, y, z, w). Per-trajectory values repeat
 /// on every row of the trajectory; the start state is filled at step 0 only.
 pub fn columns() -> Vec<ColumnSpec> {
-    use DataType::*;
-    vec![
-        ColumnSpec::new("traj_id", UInt32, false, "trajectory, 0-based in sampling order"),
-        ColumnSpec::new("step", UInt32, false, "0 = the start state (the reset state, no reward); then one row per policy step, at most the horizon"),
-        ColumnSpec::new("masked", Boolean, false, "no reward at this step: an inserted masked state (ref null) or a missing reference frame (ref set)"),
-        ColumnSpec::new("ref_clip", UInt32, true, "clip of the reference frame tracked at this step (clips.parquet clip_id); null at step 0 and for inserted masked states"),
-        ColumnSpec::new("ref_frame", UInt32, true, "frame of the reference frame tracked at this step"),
-        ColumnSpec::new("condition", UInt32, false, "condition: class id of the target skill A"),
-        ColumnSpec::new("target_skill", Utf8, false, "skill A the trajectory tracks"),
-        ColumnSpec::new("start_kind", Utf8, false, "rsi (a frame of A chosen by ATS), stg (an external state through an STG edge), rsi+noise or stg+noise (then drawn from the epsilon-neighbourhood)"),
-        ColumnSpec::new("fallback", Boolean, false, "the sampled start had beta <= tau and was replaced by a plain reference frame of A (start_kind rsi)"),
-        ColumnSpec::new("centroid_clip", UInt32, false, "clip of the centroid state before noise: the ATS frame of A (rsi) or the STG edge's source frame (stg)"),
-        ColumnSpec::new("centroid_frame", UInt32, false, "frame of the centroid state"),
-        ColumnSpec::new("beta", Float64, false, "similarity S_k (Eq. 19) of the start and the reference frame it connects to (Eq. 6 argmax); 1 for an unperturbed reference start"),
-        ColumnSpec::new("n_masked", UInt32, false, "masked states N between start and reference (Eq. 20)"),
-        ColumnSpec::new("root_pos", f32_fixed(3), true, "start state (step 0 only): root world position, m"),
-        ColumnSpec::new("root_rot", f32_fixed(4), true, "start: root world rotation, unit quaternion (x, y, z, w)"),
-        ColumnSpec::new("root_rot_expmap", f32_fixed(3), true, "start: root world rotation, exp-map, rad"),
-        ColumnSpec::new("root_linvel", f32_fixed(3), true, "start: root linear velocity, m/s"),
-        ColumnSpec::new("root_angvel", f32_fixed(3), true, "start: root angular velocity, rad/s (frame as in frames.parquet)"),
-        ColumnSpec::new("joint_rot", f32_list(), true, "start: [J*3] joint exp-maps, rad"),
-        ColumnSpec::new("joint_vel", f32_list(), true, "start: [J*3] joint exp-map velocities, rad/s"),
-        ColumnSpec::new("body_pos", f32_list(), true, "start: [B*3] body world positions, m (under noise: stored positions plus the forward-kinematics change, or rigid with the root when sample-stf.fk = false)"),
-        ColumnSpec::new("body_vel", f32_list(), true, "start: [B*3] body linear velocities, m/s"),
-        ColumnSpec::new("obj_pos", f32_list(), true, "start: [O*3] object positions, m"),
-        ColumnSpec::new("obj_rot", f32_list(), true, "start: [O*4] object rotations, unit quaternions (x, y, z, w)"),
-        ColumnSpec::new("obj_linvel", f32_list(), true, "start: [O*3] object linear velocities, m/s"),
-        ColumnSpec::new("obj_angvel", f32_list(), true, "start: [O*3] object angular velocities, rad/s"),
-    ]
+    specs::<StfRow>()
 }
 
 /// The record batch of `trajs` (trajectory ids = positions).
 pub fn batch(trajs: &[Trajectory]) -> Result<RecordBatch> {
-    let n: usize = trajs.iter().map(|t| t.steps.len()).sum();
-    let mut traj_id = Vec::with_capacity(n);
-    let mut step = Vec::with_capacity(n);
-    let mut masked = Vec::with_capacity(n);
-    let mut ref_clip = Vec::with_capacity(n);
-    let mut ref_frame = Vec::with_capacity(n);
-    let mut condition = Vec::with_capacity(n);
-    let mut skill = Vec::with_capacity(n);
-    let mut kind = Vec::with_capacity(n);
-    let mut fallback = Vec::with_capacity(n);
-    let mut cc = Vec::with_capacity(n);
-    let mut cf = Vec::with_capacity(n);
-    let mut beta = Vec::with_capacity(n);
-    let mut nm = Vec::with_capacity(n);
-    let mut state: Vec<F32Rows> = vec![
-        F32Rows::fixed(3),
-        F32Rows::fixed(4),
-        F32Rows::fixed(3),
-        F32Rows::fixed(3),
-        F32Rows::fixed(3),
-    ];
-    state.extend((0..8).map(|_| F32Rows::list()));
+    let mut rows = Vec::with_capacity(trajs.iter().map(|t| t.steps.len()).sum());
     for (id, t) in trajs.iter().enumerate() {
+        let start = std::sync::Arc::new(t.start.clone());
         for (k, s) in t.steps.iter().enumerate() {
-            traj_id.push(id as u32);
-            step.push(k as u32);
-            masked.push(s.masked);
-            ref_clip.push(s.ref_clip);
-            ref_frame.push(s.ref_frame);
-            condition.push(t.condition);
-            skill.push(t.target_skill.as_str());
-            kind.push(t.kind_label());
-            fallback.push(t.fallback);
-            cc.push(t.centroid.0);
-            cf.push(t.centroid.1);
-            beta.push(t.beta);
-            nm.push(t.n_masked);
-            let st = &t.start;
-            let parts: [&[f32]; 13] = [
-                &st.root_pos,
-                &st.root_rot,
-                &st.root_rot_expmap,
-                &st.root_linvel,
-                &st.root_angvel,
-                &st.joint_rot,
-                &st.joint_vel,
-                &st.body_pos,
-                &st.body_vel,
-                &st.obj_pos,
-                &st.obj_rot,
-                &st.obj_linvel,
-                &st.obj_angvel,
-            ];
-            for (c, v) in state.iter_mut().zip(parts) {
-                c.push((k == 0).then_some(v));
-            }
+            rows.push(StfRow {
+                traj_id: id as u32,
+                step: k as u32,
+                masked: s.masked,
+                ref_clip: s.ref_clip,
+                ref_frame: s.ref_frame,
+                condition: t.condition,
+                target_skill: t.target_skill.clone(),
+                start_kind: t.kind_label(),
+                fallback: t.fallback,
+                centroid: t.centroid,
+                beta: t.beta,
+                n_masked: t.n_masked,
+                start: (k == 0).then(|| start.clone()),
+            });
         }
     }
-    let mut arrays: Vec<ArrayRef> = vec![
-        Arc::new(UInt32Array::from(traj_id)),
-        Arc::new(UInt32Array::from(step)),
-        Arc::new(BooleanArray::from(masked)),
-        Arc::new(UInt32Array::from(ref_clip)),
-        Arc::new(UInt32Array::from(ref_frame)),
-        Arc::new(UInt32Array::from(condition)),
-        Arc::new(StringArray::from_iter_values(skill)),
-        Arc::new(StringArray::from_iter_values(kind)),
-        Arc::new(BooleanArray::from(fallback)),
-        Arc::new(UInt32Array::from(cc)),
-        Arc::new(UInt32Array::from(cf)),
-        Arc::new(Float64Array::from(beta)),
-        Arc::new(UInt32Array::from(nm)),
-    ];
-    arrays.extend(state.into_iter().map(F32Rows::finish));
-    Ok(RecordBatch::try_new(schema_of(&columns()), arrays)?)
+    super::columns::batch(&rows)
 }
 
 /// An integer column as u64 values (any Arrow integer type, no nulls or
