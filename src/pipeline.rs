@@ -132,9 +132,14 @@ impl Lock {
     }
 }
 
-/// One policy of a run: the index of its method and, for a per-skill
-/// policy, its skill.
-pub type Policy = (usize, Option<String>);
+/// One policy of a run.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Policy {
+    /// Index of its method in `[run] methods`.
+    pub method: usize,
+    /// The skill of a per-skill policy (`None`: every skill).
+    pub skill: Option<String>,
+}
 
 /// The policies of `cfg` (one per method, or one per method and listed
 /// skill).
@@ -142,11 +147,17 @@ pub fn policies(cfg: &RunConfig) -> Vec<Policy> {
     (0..cfg.methods.len())
         .flat_map(|i| {
             if cfg.policy_per_skill.is_empty() {
-                vec![(i, None)]
+                vec![Policy {
+                    method: i,
+                    skill: None,
+                }]
             } else {
                 cfg.policy_per_skill
                     .iter()
-                    .map(|s| (i, Some(s.clone())))
+                    .map(|s| Policy {
+                        method: i,
+                        skill: Some(s.clone()),
+                    })
                     .collect()
             }
         })
@@ -156,9 +167,9 @@ pub fn policies(cfg: &RunConfig) -> Vec<Policy> {
 /// A policy's folder name under `train/` and `eval/`: its method label,
 /// then `/SKILL` for a per-skill policy.
 pub fn policy_name(cfg: &RunConfig, p: &Policy) -> String {
-    match &p.1 {
-        Some(s) => format!("{}/{s}", cfg.methods[p.0]),
-        None => cfg.methods[p.0].clone(),
+    match &p.skill {
+        Some(s) => format!("{}/{s}", cfg.methods[p.method]),
+        None => cfg.methods[p.method].clone(),
     }
 }
 

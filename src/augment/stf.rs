@@ -550,6 +550,28 @@ impl<'a> StfSampler<'a> {
         self.sample_in_clip(clip, ats, p, rng)
     }
 
+    /// `n` trajectories ([`StfSampler::sample`]) in parallel, trajectory
+    /// `i` drawn from its own ChaCha8 stream `i` of `seed`: the same
+    /// trajectories at any thread count. `None` if no clip can start.
+    pub fn sample_many(
+        &self,
+        ats: &AtsWeights,
+        p: &StfParams,
+        n: usize,
+        seed: u64,
+    ) -> Option<Vec<Trajectory>> {
+        use rand::SeedableRng;
+        use rayon::prelude::*;
+        (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                rng.set_stream(i as u64);
+                self.sample(ats, p, &mut rng)
+            })
+            .collect()
+    }
+
     /// Sample one trajectory whose target skill is that of `clip` and whose
     /// RSI frames come from `clip` (by the ATS frame weights). `None` if the
     /// clip has no start frame.

@@ -253,8 +253,10 @@ pub struct Pretrained {
     pub curve: Vec<LossRow>,
     /// The embedding of every frame with a history, after training.
     pub trained: Vec<FrameEmbedding>,
-    /// Between- over within-skill variance of h, untrained and trained.
-    pub separation: (f64, f64),
+    /// Between- over within-skill variance of h before training.
+    pub separation_untrained: f64,
+    /// The same after training.
+    pub separation_trained: f64,
 }
 
 /// Pre-train the history encoder on `lib` with `set` by behaviour cloning
@@ -355,6 +357,7 @@ pub fn pretrain(
         named,
         curve,
         trained,
-        separation: (sep_before, sep_after),
+        separation_untrained: sep_before,
+        separation_trained: sep_after,
     })
 }

@@ -46,7 +46,7 @@ pub fn run(common: &Common, device_flag: Option<nn::DeviceName>) -> Result<()> {
     )?;
     bar.finish_and_clear();
     let (cfg, curve, trained) = (&p.cfg, &p.curve, &p.trained);
-    let (sep_before, sep_after) = p.separation;
+    let (sep_before, sep_after) = (p.separation_untrained, p.separation_trained);
     let secs = started.elapsed().as_secs_f64();
 
     // Outputs.

@@ -67,7 +67,10 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
                 .join(policy_name(&cfg, policy.expect("a policy step")))
         };
         let skill_set = |a: &mut StageArgs| {
-            if let Some((_, Some(skill))) = policy {
+            if let Some(crate::pipeline::Policy {
+                skill: Some(skill), ..
+            }) = policy
+            {
                 a.set.push(format!("train.skills=[\"{skill}\"]"));
             }
         };
@@ -86,7 +89,7 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
             )?,
             "train" => {
                 let dir = method_dir("train");
-                let mut sw = switches[policy.unwrap().0].clone();
+                let mut sw = switches[policy.unwrap().method].clone();
                 sw.resume = resume && dir.join("checkpoint/state.json").is_file();
                 if !sw.resume && dir.exists() {
                     std::fs::remove_dir_all(&dir).with_context(|| {
@@ -101,8 +104,10 @@ pub fn run(recipe: &Path, args: StageArgs) -> Result<()> {
                 let trained = method_dir("train");
                 let dir = method_dir("eval");
                 let mut a = stage_args(dir, Some(data.clone()));
-                a.set
-                    .push(format!("eval.label={}", cfg.methods[policy.unwrap().0]));
+                a.set.push(format!(
+                    "eval.label={}",
+                    cfg.methods[policy.unwrap().method]
+                ));
                 super::eval::run(&Common::new(a)?, &trained)?
             }
             "report" => {

@@ -19,9 +19,6 @@ use crate::reward::{DatasetKind, Weights};
 use crate::table;
 use crate::table::io::Outputs;
 use anyhow::{bail, Context, Result};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 use std::path::Path;
 use std::time::Instant;
 
@@ -83,14 +80,8 @@ pub fn run(common: &Common) -> Result<()> {
     }
     let aw = ats.weights(&ats_params);
     let seed = common.args.seed;
-    let trajs: Vec<Trajectory> = (0..cfg.trajectories)
-        .into_par_iter()
-        .map(|i| {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            rng.set_stream(i as u64);
-            sampler.sample(&aw, &params, &mut rng)
-        })
-        .collect::<Option<Vec<_>>>()
+    let trajs: Vec<Trajectory> = sampler
+        .sample_many(&aw, &params, cfg.trajectories as usize, seed)
         .with_context(|| {
             format!(
                 "sample-stf: no clip of {} has a start frame",
