@@ -1,8 +1,8 @@
 # Common tasks. `just` is optional: each recipe is one plain command.
 
-# The main job on the default data: ingest the five BallPlay skills.
+# The README's main job: train the pickup skill and evaluate and report it.
 main:
-    cargo run --release -- ingest --dataset ballplay --recipe stages/ballplay.toml --out runs/ballplay
+    cargo run --release -- run stages/quickstart.toml --out runs/quickstart
 
 # The whole test suite (what CI runs).
 test:
@@ -16,7 +16,7 @@ ci:
 
 # Re-bless the schema golden files after an intended change.
 bless-schemas:
-    for t in clips frames stg_edges stg_summary stf_samples he_loss he_embeddings; do cargo run --release -q -- schema $t > schemas/$t.txt; done
+    for t in clips frames stg_edges stg_summary he_loss he_embeddings stf_samples train_metrics eval_trials eval_summary eval_rollouts; do cargo run --release -q -- schema $t > schemas/$t.txt; done
 
 # Ingest every shipped dataset and time it.
 bench-ingest:
