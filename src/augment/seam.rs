@@ -84,9 +84,9 @@ pub fn seams(lib: &MotionLib, w: &Weights, min_loop: usize) -> Vec<Option<Seam>>
 /// `min_loop` frames before L', a frame of another clip at least
 /// `min_loop` frames before the earliest frame that clip may be cut at, so
 /// that [`seams`] of the cut clips finds a seam at least as similar); the
-/// last valid frame where no frame does better or `search` is 0. Cutting a clip at L' makes a
-/// loop of a periodic motion (a dribble) close where its phases match
-/// instead of wherever the capture stopped.
+/// last valid frame where no frame does better or `search` is 0. Cutting a
+/// clip at L' makes a loop of a periodic motion (a dribble) close where its
+/// phases match instead of wherever the capture stopped.
 pub fn leave_frames(lib: &MotionLib, w: &Weights, min_loop: usize, search: usize) -> Vec<usize> {
     (0..lib.clips.len())
         .map(|c| {
