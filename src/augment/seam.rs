@@ -93,32 +93,38 @@ pub fn leave_frames(lib: &MotionLib, w: &Weights, min_loop: usize, search: usize
             let Some(last) = lib.frames[c].last_valid() else {
                 return 0;
             };
+            // the skill's candidate frames, built once for every leave
+            // frame: (clip, frame, state)
+            let mut candidates = Vec::new();
+            for c2 in lib.clips_of(&lib.clips[c].skill) {
+                let Some(last2) = lib.frames[c2].last_valid() else {
+                    continue;
+                };
+                // another clip may be cut too: only its frames that every
+                // cut keeps count, so the seam found here stays
+                let bound = if c2 == c {
+                    last
+                } else {
+                    last2.saturating_sub(search)
+                };
+                for (f, ok) in start_frames(&lib.frames[c2]).iter().enumerate() {
+                    if *ok && f + min_loop <= bound {
+                        if let Some(s) = lib.state(c2, f) {
+                            candidates.push((c2, f, s));
+                        }
+                    }
+                }
+            }
             let mut best = (last, f64::NEG_INFINITY);
             for leave in (last.saturating_sub(search)..=last).rev() {
                 let Some(end) = lib.state(c, leave) else {
                     continue;
                 };
-                let mut top = f64::NEG_INFINITY;
-                for c2 in lib.clips_of(&lib.clips[c].skill) {
-                    let Some(last2) = lib.frames[c2].last_valid() else {
-                        continue;
-                    };
-                    // another clip may be cut too: only its frames that
-                    // every cut keeps count, so the seam found here stays
-                    let bound = if c2 == c {
-                        leave
-                    } else {
-                        last2.saturating_sub(search)
-                    };
-                    for (f, ok) in start_frames(&lib.frames[c2]).iter().enumerate() {
-                        if !*ok || f + min_loop > bound {
-                            continue;
-                        }
-                        let Some(s) = lib.state(c2, f) else { continue };
-                        let beta = reward::similarity(&end, &s, lib.skeleton, w, Align::default());
-                        top = top.max(beta);
-                    }
-                }
+                let top = candidates
+                    .iter()
+                    .filter(|(c2, f, _)| *c2 != c || f + min_loop <= leave)
+                    .map(|(_, _, s)| reward::similarity(&end, s, lib.skeleton, w, Align::default()))
+                    .fold(f64::NEG_INFINITY, f64::max);
                 if top > best.1 {
                     best = (leave, top);
                 }

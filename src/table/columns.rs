@@ -133,23 +133,20 @@ primitive_cells! {
     bool => Boolean, BooleanArray;
 }
 
-impl CellValue for String {
-    fn data_type() -> DataType {
-        DataType::Utf8
-    }
-    fn array(values: Vec<Self>) -> ArrayRef {
-        Arc::new(arrow::array::StringArray::from_iter_values(values))
-    }
+macro_rules! string_cells {
+    ($($t:ty),*) => {$(
+        impl CellValue for $t {
+            fn data_type() -> DataType {
+                DataType::Utf8
+            }
+            fn array(values: Vec<Self>) -> ArrayRef {
+                Arc::new(arrow::array::StringArray::from_iter_values(values))
+            }
+        }
+    )*};
 }
 
-impl CellValue for &'static str {
-    fn data_type() -> DataType {
-        DataType::Utf8
-    }
-    fn array(values: Vec<Self>) -> ArrayRef {
-        Arc::new(arrow::array::StringArray::from_iter_values(values))
-    }
-}
+string_cells!(String, &'static str);
 
 /// `List<Utf8>` with non-null items ([`super::str_list`]).
 impl CellValue for Vec<String> {
@@ -199,11 +196,9 @@ impl<const N: usize> CellValue for [f32; N] {
         super::f32_fixed(N as i32)
     }
     fn array(values: Vec<Self>) -> ArrayRef {
-        let mut b = F32Rows::fixed(N);
-        for row in &values {
-            b.push(Some(row));
-        }
-        b.finish()
+        // the nullable column's builder writes no null buffer when every
+        // row is set: the same array
+        Option::<[f32; N]>::array(values.into_iter().map(Some).collect())
     }
 }
 
@@ -213,11 +208,7 @@ impl CellValue for Vec<f32> {
         super::f32_list()
     }
     fn array(values: Vec<Self>) -> ArrayRef {
-        let mut b = F32Rows::list();
-        for row in &values {
-            b.push(Some(row));
-        }
-        b.finish()
+        Option::<Vec<f32>>::array(values.into_iter().map(Some).collect())
     }
 }
 
