@@ -143,6 +143,10 @@ pub enum Bench {
     Sim,
     /// Whole PPO iterations: samples/s and the simulation-only bound.
     Train,
+    /// History-encoder embeddings per window: candle's batched convolution
+    /// against the environments' per-position kernel, from scratch and for
+    /// a window moved on by one frame.
+    He,
 }
 
 /// `skillaug bench`.

@@ -65,7 +65,7 @@ fn record(run: &Path, pol: &Path, envs: usize, steps: usize) -> (Vec<f32>, Vec<f
     let dev = candle_core::Device::Cpu;
     let he = meta.he_dir.as_ref().map(|d| {
         let enc = skillaug::nn::he::load(Path::new(d), &dev).unwrap();
-        HeRuntime::new(enc, &s.lib, &dev).unwrap()
+        HeRuntime::new(enc, &s.lib).unwrap()
     });
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     let mut env = environment(&s, &cfg, he, envs, &mut rng).unwrap();

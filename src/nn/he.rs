@@ -210,6 +210,16 @@ impl HistoryEncoder {
         Ok(HistoryEncoder { convs, fc, cfg })
     }
 
+    /// The convolutions, input first (weights `[out, in, kernel]`).
+    pub fn convs(&self) -> &[Conv1d] {
+        &self.convs
+    }
+
+    /// The linear layer from the flattened last activation (`[mu, c * k]`).
+    pub fn fc(&self) -> &Linear {
+        &self.fc
+    }
+
     /// `[batch, k, C]` windows to `[batch, mu]` embeddings.
     pub fn encode(&self, windows: &Tensor) -> candle_core::Result<Tensor> {
         let mut h = windows.transpose(1, 2)?.contiguous()?; // [batch, C, k]

@@ -7,6 +7,7 @@
 //! (measured: saturated outputs), and runs must repeat for a seed.
 
 pub mod he;
+pub mod he_kernel;
 pub mod he_train;
 
 use anyhow::{bail, Result};

@@ -70,12 +70,12 @@ use crate::augment::seam::Seam;
 use crate::augment::stf::{StartKind, Step, StfParams, StfSampler, Trajectory};
 use crate::motion::{quat, MotionLib, Skeleton, State};
 use crate::nn::he::{self, HistoryEncoder};
+use crate::nn::he_kernel::{EncoderCache, EncoderKernel};
 use crate::reward::{self, DatasetKind, RewardOptions, Weights};
 use crate::sim::mjcf::Model;
 use crate::sim::world::{rotation_of, vector_of};
 use crate::sim::{ContactReport, ObjectSpec, SimOptions, World};
 use anyhow::{bail, ensure, Context, Result};
-use candle_core::{Device, Tensor};
 use rand_chacha::ChaCha8Rng;
 use rapier3d::math::{Rotation, Vector};
 use rayon::prelude::*;
@@ -354,13 +354,16 @@ pub fn write_observation(
 #[derive(Clone)]
 pub struct HeRuntime {
     enc: HistoryEncoder,
+    /// The encoder's forward pass one window position at a time, which
+    /// the environments use (`crate::nn::he_kernel`).
+    kernel: std::sync::Arc<EncoderKernel>,
     feats: Vec<Vec<Option<Vec<f32>>>>,
-    dev: Device,
 }
 
 impl HeRuntime {
-    /// Wrap a loaded encoder for `lib`; refuses an encoder built for another skeleton.
-    pub fn new(enc: HistoryEncoder, lib: &MotionLib, dev: &Device) -> Result<HeRuntime> {
+    /// Wrap a loaded encoder for `lib` (on any device: the environments
+    /// run it on the CPU); refuses an encoder built for another skeleton.
+    pub fn new(enc: HistoryEncoder, lib: &MotionLib) -> Result<HeRuntime> {
         let cfg = &enc.cfg;
         ensure!(
             cfg.skeleton == lib.skeleton.name(),
@@ -369,11 +372,8 @@ impl HeRuntime {
             lib.skeleton.name()
         );
         let feats = he::clip_features(lib, cfg);
-        Ok(HeRuntime {
-            enc,
-            feats,
-            dev: dev.clone(),
-        })
+        let kernel = std::sync::Arc::new(EncoderKernel::new(&enc)?);
+        Ok(HeRuntime { enc, kernel, feats })
     }
 
     /// Embedding size.
@@ -399,14 +399,10 @@ impl HeRuntime {
         he::window(&self.feats[clip], frame, self.k(), self.c())
     }
 
-    /// Embeddings of `windows` (`[n, k*C]` flattened).
-    fn encode(&self, windows: &[&[f32]]) -> Result<Vec<Vec<f32>>> {
-        if windows.is_empty() {
-            return Ok(Vec::new());
-        }
-        let flat: Vec<f32> = windows.iter().flat_map(|w| w.iter().copied()).collect();
-        let t = Tensor::from_vec(flat, (windows.len(), self.k(), self.c()), &self.dev)?;
-        Ok(self.enc.encode(&t)?.to_vec2::<f32>()?)
+    /// The embedding (`[mu]`) of one `[k*C]` window, reusing and updating
+    /// `cache` (the same bits as without it: [`EncoderKernel::encode_cached`]).
+    fn encode(&self, window: &[f32], cache: &mut EncoderCache) -> Vec<f32> {
+        self.kernel.encode_cached(window, cache).0
     }
 }
 
@@ -527,6 +523,8 @@ struct Episode {
     n: usize,
     actions: Vec<f32>,
     hist: Vec<f32>,
+    /// The encoder's activations of the last embedded `hist`.
+    he_cache: EncoderCache,
     /// With residual actions: the coming step's feed-forward action, the
     /// next reference frame's joint exp-maps / π (`[J*3]`); empty without.
     ff: Vec<f32>,
@@ -863,6 +861,7 @@ impl Ctx<'_> {
             n: 0,
             actions: Vec::new(),
             hist,
+            he_cache: EncoderCache::default(),
             traj,
             ff: Vec::new(),
             next_ref: None,
@@ -1399,10 +1398,10 @@ impl<'a> HumanoidEnv<'a> {
                 let key = (t.connect.0 as usize, t.connect.1 as usize);
                 let ((_, ep, mut row), _) = ctx.start(t, key, he)?;
                 if let Some(h) = he {
-                    let emb = h.encode(&[ep.hist.as_slice()])?;
+                    let emb = h.encode(&ep.hist, &mut EncoderCache::default());
                     let d = h.dim();
                     let od = row.len();
-                    row[od - d..].copy_from_slice(&emb[0]);
+                    row[od - d..].copy_from_slice(&emb);
                 }
                 Ok((row, target))
             })
@@ -1543,16 +1542,29 @@ impl<'a> HumanoidEnv<'a> {
             return Ok(());
         };
         let od = self.ctx.obs_dim;
-        let hists: Vec<&[f32]> = feats
-            .iter()
-            .map(|(e, _)| self.eps[*e].hist.as_slice())
-            .collect();
-        let embs = he.encode(&hists)?;
         let d = he.dim();
-        for ((e, f), h) in feats.iter().zip(embs) {
-            self.obs[(e + 1) * od - d..(e + 1) * od].copy_from_slice(&h);
-            push_history(&mut self.eps[*e].hist, f);
+        let mut pushed: Vec<Option<&[f32]>> = vec![None; self.eps.len()];
+        for (e, f) in feats {
+            debug_assert!(
+                pushed[*e].is_none(),
+                "environment {e} embedded twice in one step"
+            );
+            pushed[*e] = Some(f);
         }
+        // each environment's window moves on by one frame per step, so
+        // its cache leaves only the positions next to the window's ends
+        // to compute
+        self.obs
+            .par_chunks_mut(od)
+            .zip(self.eps.par_iter_mut())
+            .zip(pushed.into_par_iter())
+            .for_each(|((row, ep), f)| {
+                if let Some(f) = f {
+                    let emb = he.encode(&ep.hist, &mut ep.he_cache);
+                    row[od - d..].copy_from_slice(&emb);
+                    push_history(&mut ep.hist, f);
+                }
+            });
         Ok(())
     }
 

@@ -363,10 +363,7 @@ pub fn history_encoder(
             );
         }
     }
-    Ok(Some((
-        HeRuntime::new(enc, lib, dev)?,
-        dir.display().to_string(),
-    )))
+    Ok(Some((HeRuntime::new(enc, lib)?, dir.display().to_string())))
 }
 
 /// Hash of the settings a checkpoint may be resumed with (all but

@@ -8,6 +8,13 @@
 //! paper's networks on the Dribble-Forward clips ([`crate::rl::bench`]) and
 //! prints samples per second beside the simulation-only bound.
 //!
+//! `bench he` times the history encoder's embedding of one window, at the
+//! BallPlay shape (316 channels, 60 frames, the pre-training defaults) with
+//! random weights and frames: candle's `conv1d` over a batch of 128 windows
+//! (one step of the CPU preset), and the per-position kernel the
+//! environments use ([`crate::nn::he_kernel`]) from scratch and on a
+//! window moved on by one frame, all 128 windows spread over the pool.
+//!
 //! `bench sim` prints physics steps per second of the full humanoid and of
 //! a variant without finger bodies on one thread and on the pool
 //! ([`crate::sim::bench`]), then what the settings cost in accuracy
@@ -42,6 +49,7 @@ pub fn run(what: Bench, repeat: usize, data_root: Option<PathBuf>, sets: &[Strin
         Bench::Ingest => ingest(repeat.max(1), data_root),
         Bench::Sim => sim(repeat.max(1), data_root, &opts),
         Bench::Train => train(repeat.max(1), data_root),
+        Bench::He => he(repeat.max(1)),
     }
 }
 
@@ -185,5 +193,102 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
             t.us_per_sample(t.update),
         );
     }
+    Ok(())
+}
+
+fn he(repeat: usize) -> Result<()> {
+    use crate::motion::Skeleton;
+    use crate::nn::he::{self, HeConfig, HistoryEncoder};
+    use crate::nn::he_kernel::{EncoderCache, EncoderKernel};
+    use crate::nn::he_train::HeSettings;
+    use crate::nn::Params;
+    use candle_core::{Device, Tensor};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use rayon::prelude::*;
+    let set = HeSettings::default();
+    let c = he::channels(Skeleton::MocapHumanoid, 1);
+    let k = set.history;
+    let cfg = HeConfig {
+        version: 1,
+        skeleton: Skeleton::MocapHumanoid.name().into(),
+        n_objects: 1,
+        channels: c,
+        history: k,
+        embedding: set.embedding,
+        conv: set.conv.clone(),
+        kernel: set.kernel,
+        predictor_hidden: set.predictor_hidden.clone(),
+        condition_slots: crate::motion::library::CONDITION_SLOTS,
+        feature_layout: String::new(),
+        mean: vec![0.0; c],
+        std: vec![1.0; c],
+        ingest_id: None,
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let enc = HistoryEncoder::new(cfg, &mut Params::default(), &mut rng, &Device::Cpu)?;
+    let kern = EncoderKernel::new(&enc)?;
+    let envs = 128;
+    let steps = 32;
+    // one stream of frames per environment, k + steps long
+    let streams: Vec<Vec<f32>> = (0..envs)
+        .map(|_| {
+            (0..(k + steps) * c)
+                .map(|_| rng.random_range(-2.0..2.0))
+                .collect()
+        })
+        .collect();
+    let window = |e: usize, t: usize| &streams[e][t * c..(t + k) * c];
+    let mut candle_us = Vec::with_capacity(repeat);
+    let mut full_us = Vec::with_capacity(repeat);
+    let mut shifted_us = Vec::with_capacity(repeat);
+    for _ in 0..repeat + 1 {
+        let flat: Vec<f32> = (0..envs).flat_map(|e| window(e, 0).to_vec()).collect();
+        let batch = Tensor::from_vec(flat, (envs, k, c), &Device::Cpu)?;
+        let t0 = Instant::now();
+        let _ = enc.encode(&batch)?.to_vec2::<f32>()?;
+        candle_us.push(t0.elapsed().as_secs_f64() * 1e6 / envs as f64);
+        let mut caches = vec![EncoderCache::default(); envs];
+        let t0 = Instant::now();
+        caches
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(e, cache)| drop(kern.encode_cached(window(e, 0), cache)));
+        full_us.push(t0.elapsed().as_secs_f64() * 1e6 / envs as f64);
+        let t0 = Instant::now();
+        for t in 1..=steps {
+            caches
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(e, cache)| drop(kern.encode_cached(window(e, t), cache)));
+        }
+        shifted_us.push(t0.elapsed().as_secs_f64() * 1e6 / (envs * steps) as f64);
+    }
+    for v in [&mut candle_us, &mut full_us, &mut shifted_us] {
+        v.remove(0);
+    }
+    let shifted = median(shifted_us);
+    println!(
+        "history encoder, {c} channels x {k} frames, conv {:?}, {envs} windows per call ({} threads; medians of {repeat} after one more)",
+        set.conv,
+        rayon::current_num_threads()
+    );
+    println!("{:<44} {:>12}", "embedding of one window", "us");
+    println!(
+        "{:<44} {:>12.1}",
+        "candle conv1d, batch of 128",
+        median(candle_us)
+    );
+    println!(
+        "{:<44} {:>12.1}",
+        "per-position kernel, from scratch",
+        median(full_us)
+    );
+    println!(
+        "{:<44} {:>12.1}   (recomputes {:?} positions per layer)",
+        "per-position kernel, window moved one frame",
+        shifted,
+        kern.recomputed_positions()
+    );
     Ok(())
 }

@@ -47,7 +47,7 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         Some(dir) => {
             let dev = candle_core::Device::Cpu;
             let enc = crate::nn::he::load(&dir, &dev)?;
-            Some(HeRuntime::new(enc, &setup.lib, &dev)?)
+            Some(HeRuntime::new(enc, &setup.lib)?)
         }
         None => None,
     };
