@@ -10,8 +10,9 @@
 //! 1/17 of the arithmetic of the whole window (`docs/training.md`,
 //! "The full method's speed").
 //!
-//! candle has no such incremental convolution, and its `conv1d` sums each
-//! output in an order that depends on the batch's shape; this module's own
+//! candle has no such incremental convolution, and its `conv1d` (an
+//! unfolding and a blocked matrix product) sums each output in an order of
+//! its own that a single position cannot reproduce; this module's own
 //! loops compute every output from its inputs in one fixed order, so a
 //! reused value and a recomputed one have the same bits, and an embedding
 //! does not depend on what was cached (resume after a checkpoint rebuilds
