@@ -86,8 +86,9 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
 
 #[test]
 fn a_run_with_the_history_encoder_killed_and_resumed_matches_too() {
-    // The encoder embeds the observations of all environments in one batch;
-    // the replayed episodes after a resume must still see the same bits.
+    // Each environment's encoder keeps the activations of its last window
+    // (src/nn/he_kernel.rs); the replayed episodes after a resume start
+    // with empty caches and must still see the same bits.
     killed_and_resumed_matches_uninterrupted(true, &[]);
 }
 

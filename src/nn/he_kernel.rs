@@ -189,8 +189,13 @@ impl EncoderKernel {
     pub fn encode_cached(&self, window: &[f32], cache: &mut EncoderCache) -> (Vec<f32>, Reuse) {
         let (k, c) = (self.k, self.c);
         assert_eq!(window.len(), k * c, "history window of {} values", k * c);
-        let same_shape =
-            cache.window.len() == window.len() && cache.acts.len() == self.layers.len();
+        let same_shape = cache.window.len() == window.len()
+            && cache.acts.len() == self.layers.len()
+            && cache
+                .acts
+                .iter()
+                .zip(&self.layers)
+                .all(|(a, l)| a.len() == k * l.out);
         let shifted = same_shape && bits_equal(&window[..(k - 1) * c], &cache.window[c..]);
         let reuse = if same_shape && bits_equal(window, &cache.window) {
             Reuse::Same
@@ -200,7 +205,9 @@ impl EncoderKernel {
             Reuse::Full
         };
         if reuse != Reuse::Same {
-            if cache.acts.len() != self.layers.len() {
+            // no window names the activations while they change
+            let old_window = std::mem::take(&mut cache.window);
+            if !same_shape {
                 cache.acts = self.layers.iter().map(|l| vec![0.0; k * l.out]).collect();
             }
             for li in 0..self.layers.len() {
@@ -217,6 +224,7 @@ impl EncoderKernel {
                 let todo = if shifted { &layer.recompute } else { &self.all };
                 self.conv_positions(layer, input, todo, acts);
             }
+            cache.window = old_window;
             cache.window.clear();
             cache.window.extend_from_slice(window);
         }
@@ -368,7 +376,7 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    fn encoder(channels: usize, history: usize) -> HistoryEncoder {
+    fn encoder(channels: usize, history: usize, conv: &[usize], kernel: usize) -> HistoryEncoder {
         let cfg = HeConfig {
             version: 1,
             skeleton: "mocap_humanoid".into(),
@@ -376,8 +384,8 @@ mod tests {
             channels,
             history,
             embedding: 3,
-            conv: vec![16, 8, 4],
-            kernel: 3,
+            conv: conv.to_vec(),
+            kernel,
             predictor_hidden: vec![8],
             condition_slots: 64,
             feature_layout: String::new(),
@@ -391,14 +399,23 @@ mod tests {
 
     #[test]
     fn positions_agree_with_candle_and_shifted_windows_reuse_their_cache_bit_for_bit() {
+        // kernel 3, padding 1: the two window ends, plus one more per side
+        // and layer; 6 channels leave a group of two beside the groups of
+        // four output channels
+        shifted_windows_match(&[16, 6, 4], 3, &[3, 5, 7]);
+        // kernel 5, padding 2: two more per side and layer
+        shifted_windows_match(&[8, 5], 5, &[5, 9]);
+    }
+
+    fn shifted_windows_match(conv: &[usize], kernel: usize, recomputed: &[usize]) {
         let (c, k) = (13, 20);
-        let enc = encoder(c, k);
+        let enc = encoder(c, k, conv, kernel);
         let kern = EncoderKernel::new(&enc).unwrap();
-        // kernel 3, padding 1: the two window ends, plus one more per layer
-        assert_eq!(kern.recomputed_positions(), vec![3, 5, 7]);
+        assert_eq!(kern.recomputed_positions(), recomputed);
         let mut rng = ChaCha8Rng::seed_from_u64(9);
-        // a stream of frames; the first 5 windows start with zero slots (a
-        // clip's start), frame 30 is missing (zeros)
+        // a stream of frames; window t holds frames t-15 .. t+4, so the
+        // first 15 windows start with zero slots (a clip's start); frame 30
+        // is missing (zeros)
         let frames: Vec<Vec<f32>> = (0..60)
             .map(|f| {
                 if f == 30 {
@@ -425,8 +442,8 @@ mod tests {
             let fresh = kern.encode(&w);
             let (cached, reuse) = kern.encode_cached(&w, &mut cache);
             let expected = if t == 0 { Reuse::Full } else { Reuse::Shifted };
-            assert_eq!(reuse, expected, "window {t}");
-            assert_eq!(bits(&fresh), bits(&cached), "window {t}");
+            assert_eq!(reuse, expected, "window {t}, kernel {kernel}");
+            assert_eq!(bits(&fresh), bits(&cached), "window {t}, kernel {kernel}");
             // the same window again comes from the cache unchanged
             let (again, reuse) = kern.encode_cached(&w, &mut cache);
             assert_eq!((bits(&again), reuse), (bits(&fresh), Reuse::Same));
