@@ -206,7 +206,7 @@ impl EncoderKernel {
         };
         if reuse != Reuse::Same {
             // no window names the activations while they change
-            let old_window = std::mem::take(&mut cache.window);
+            cache.window.clear();
             if !same_shape {
                 cache.acts = self.layers.iter().map(|l| vec![0.0; k * l.out]).collect();
             }
@@ -222,10 +222,8 @@ impl EncoderKernel {
                     acts.copy_within(layer.out.., 0);
                 }
                 let todo = if shifted { &layer.recompute } else { &self.all };
-                self.conv_positions(layer, input, todo, acts);
+                conv_positions(layer, self.kernel, k, input, todo, acts);
             }
-            cache.window = old_window;
-            cache.window.clear();
             cache.window.extend_from_slice(window);
         }
         let last: &[f32] = cache.acts.last().map_or(window, |a| a);
@@ -238,27 +236,15 @@ impl EncoderKernel {
             .collect();
         (emb, reuse)
     }
-
-    /// Layer `layer` at the window positions `positions`, into `acts`
-    /// (`[k][out]`): `acts[p][o] = relu(sum over taps j of w[o][j] .
-    /// input[p + j - K/2] + b[o])`, taps outside the window being zeros and
-    /// the taps summed in order. Each weight row is read once for all the
-    /// positions (the rows of the first layer, 485 kB, do not stay in the
-    /// cache between positions).
-    fn conv_positions(
-        &self,
-        layer: &ConvLayer,
-        input: &[f32],
-        positions: &[usize],
-        acts: &mut [f32],
-    ) {
-        conv_positions_lanes(layer, self.kernel, self.k, input, positions, acts)
-    }
 }
 
-/// [`EncoderKernel::conv_positions`]'s loops: four output channels at a
-/// time (four independent sums in flight), every position per weight row.
-fn conv_positions_lanes(
+/// Layer `layer` (kernel `kernel`, window `k`) at the window positions
+/// `positions`, into `acts` (`[k][out]`): `acts[p][o] = relu(sum over taps
+/// j of w[o][j] . input[p + j - K/2] + b[o])`, taps outside the window being
+/// zeros and the taps summed in order. Four output channels at a time, so
+/// that four independent sums are in flight (the eight-lane sums of one
+/// channel alone wait on each other's additions).
+fn conv_positions(
     layer: &ConvLayer,
     kernel: usize,
     k: usize,
@@ -289,7 +275,7 @@ fn conv_positions_lanes(
                     }
                 } else {
                     for (i, si) in s.iter_mut().enumerate().take(width) {
-                        *si += dot_lanes(row(o + i, j), x);
+                        *si += dot(row(o + i, j), x);
                     }
                 }
             }
@@ -307,12 +293,8 @@ fn conv_positions_lanes(
 /// separate multiplications and additions, never fused, so the bits are
 /// those of eight scalar sums on any CPU) over blocks of eight, the tail
 /// added lane by lane, then the sums pairwise.
-fn dot(a: &[f32], b: &[f32]) -> f32 {
-    dot_lanes(a, b)
-}
-
 #[inline(always)]
-fn dot_lanes(a: &[f32], b: &[f32]) -> f32 {
+fn dot(a: &[f32], b: &[f32]) -> f32 {
     let (ac, at) = a.as_chunks::<8>();
     let (bc, bt) = b.as_chunks::<8>();
     let mut acc = f32x8::ZERO;
@@ -322,7 +304,7 @@ fn dot_lanes(a: &[f32], b: &[f32]) -> f32 {
     reduce8(add_tail(acc, at, bt))
 }
 
-/// Four dot products `rows[i] . x` with [`dot_lanes`]'s order each (the
+/// Four dot products `rows[i] . x` with [`dot`]'s order each (the
 /// same bits as four calls of it), computed together.
 #[inline(always)]
 fn dot4_lanes(rows: [&[f32]; 4], x: &[f32]) -> [f32; 4] {
