@@ -59,7 +59,8 @@ pub struct EncoderKernel {
 /// How [`EncoderKernel::encode_cached`] used its cache.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Reuse {
-    /// The window was the cached one: no convolution computed.
+    /// The window was the cached one (and not also the cached one moved
+    /// on by a frame, as a constant window is): no convolution computed.
     Same,
     /// The window was the cached one moved on by a frame: only the
     /// positions next to its ends computed.
@@ -179,9 +180,9 @@ impl EncoderKernel {
         self.encode_cached(window, &mut EncoderCache::default()).0
     }
 
-    /// The embedding `[mu]` of `window`, reusing `cache`: unchanged if the
-    /// window is the cached one, one position later where the window is the
-    /// cached one moved on by a frame, from scratch otherwise. The result
+    /// The embedding `[mu]` of `window`, reusing `cache`: one position
+    /// later where the window is the cached one moved on by a frame,
+    /// unchanged if it is the cached one, from scratch otherwise. The result
     /// has the same bits as [`EncoderKernel::encode`] either way; `cache`
     /// then holds this window.
     ///
@@ -196,11 +197,13 @@ impl EncoderKernel {
                 .iter()
                 .zip(&self.layers)
                 .all(|(a, l)| a.len() == k * l.out);
+        // a step's window is the cached one moved on: test that first, so
+        // the steps do not also compare the whole window
         let shifted = same_shape && bits_equal(&window[..(k - 1) * c], &cache.window[c..]);
-        let reuse = if same_shape && bits_equal(window, &cache.window) {
-            Reuse::Same
-        } else if shifted {
+        let reuse = if shifted {
             Reuse::Shifted
+        } else if same_shape && bits_equal(window, &cache.window) {
+            Reuse::Same
         } else {
             Reuse::Full
         };
