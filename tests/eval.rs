@@ -109,11 +109,50 @@ fn eval_gives_the_share_of_trials_standing_from_each_trials_first_fall() {
             "eval.envs=4",
             "eval.steps=200",
             "eval.metrics=[\"sr\"]",
+            "eval.record=4",
         ],
     );
     use arrow::array::{Array, AsArray};
-    use arrow::datatypes::{Float64Type, UInt32Type};
+    use arrow::datatypes::{Float32Type, Float64Type, UInt32Type};
     let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
+    // the ball's late apex is the highest recorded ball over each trial's
+    // last 100 steps
+    let apex = t.batches[0]
+        .column_by_name("late_obj_apex")
+        .unwrap()
+        .as_primitive::<Float32Type>();
+    let trial = t.batches[0]
+        .column_by_name("trial")
+        .unwrap()
+        .as_primitive::<UInt32Type>();
+    let steps = t.batches[0]
+        .column_by_name("steps")
+        .unwrap()
+        .as_primitive::<UInt32Type>();
+    let r = skillaug::table::io::read_parquet(&out.join("eval_rollouts.parquet")).unwrap();
+    for i in 0..apex.len() {
+        let (k, n) = (trial.value(i), steps.value(i));
+        let mut want = f32::NAN;
+        for b in &r.batches {
+            let (rt, rs) = (
+                b.column_by_name("trial")
+                    .unwrap()
+                    .as_primitive::<UInt32Type>(),
+                b.column_by_name("step")
+                    .unwrap()
+                    .as_primitive::<UInt32Type>(),
+            );
+            let obj = b.column_by_name("obj_pos").unwrap().as_list::<i32>();
+            for j in 0..b.num_rows() {
+                if rt.value(j) == k && rs.value(j) + 100 > n {
+                    let z = obj.value(j).as_primitive::<Float32Type>().value(2);
+                    want = want.max(z);
+                }
+            }
+        }
+        assert!(want.is_finite() && want >= 0.1, "trial {k}: {want}");
+        assert_eq!(apex.value(i), want, "trial {k}");
+    }
     let down = t.batches[0]
         .column_by_name("down_step")
         .unwrap()

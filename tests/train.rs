@@ -80,6 +80,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.ppo.normalize_value=true",
             "--set",
             "train.seam_leave_search_s=0.5",
+            "--set",
+            "train.term_object_error=0.75",
         ],
     );
 }
@@ -668,6 +670,19 @@ fn tracking_failures_end_episodes_above_the_fall_height() {
         env.step(&zeros, &mut rng).unwrap();
     }
     assert_eq!(env.take_stats().lost, 0);
+    // the object-error rule alone: zero actions drop the ball out of its
+    // dribble, so a 5 cm bound on the ball's distance to the reference's
+    // ends episodes by the ball, while the rule off (above) ended none
+    let tight = TrainConfig {
+        term_object_error: 0.05,
+        ..cfg.clone()
+    };
+    let mut env = environment(&s, &tight, None, n, &mut rng).unwrap();
+    for _ in 0..40 {
+        env.step(&zeros, &mut rng).unwrap();
+    }
+    let st = env.take_stats();
+    assert!(st.lost_object > 0 && st.lost == st.lost_object, "{st:?}");
     // a per-skill fall height: zero actions fall below 0.8 m long before 0.3 m
     let cfg = TrainConfig {
         fall_height_by_skill: [("run".to_string(), 0.8f32)].into_iter().collect(),

@@ -199,6 +199,9 @@ impl Evaluator<'_> {
         let mut running: Vec<Vec<RolloutStep>> = vec![Vec::new(); n];
         let mut judges: Vec<Option<Judge>> = (0..n).map(|_| cell.rule.map(Judge::new)).collect();
         let mut sums = vec![(0.0f64, 0usize, 0usize); n];
+        // object 0's height over each running trial's last steps
+        let mut late_z: Vec<std::collections::VecDeque<f32>> =
+            vec![std::collections::VecDeque::with_capacity(etable::LATE_APEX_STEPS); n];
         // each environment runs trials in turn until `trials` have started
         let mut started = n;
         let mut active = vec![true; n];
@@ -215,6 +218,10 @@ impl Evaluator<'_> {
                     j.update(&env.probes()[e]);
                 }
                 sums[e].2 += 1;
+                if late_z[e].len() == etable::LATE_APEX_STEPS {
+                    late_z[e].pop_front();
+                }
+                late_z[e].push_back(env.probes()[e].obj.first().map_or(f32::NAN, |o| o[2]));
                 if let Some(sm) = env.sm_rewards()[e] {
                     sums[e].0 += sm;
                     sums[e].1 += 1;
@@ -255,6 +262,9 @@ impl Evaluator<'_> {
                             .as_ref()
                             .and_then(Judge::down_step)
                             .map(|d| d as u32),
+                        late_obj_apex: std::mem::take(&mut late_z[e])
+                            .into_iter()
+                            .fold(f32::NAN, f32::max),
                     });
                     sums[e] = (0.0, 0, 0);
                     judges[e] = cell.rule.map(Judge::new);

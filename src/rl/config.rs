@@ -197,6 +197,13 @@ pub struct TrainConfig {
     /// its last frame. Not written when 0.
     #[serde(skip_serializing_if = "is_zero_f64")]
     pub seam_leave_search_s: f64,
+    /// Terminate when object 0 is farther than this from the reference's
+    /// object 0, m (0 = off): the object's own tracking-failure rule, as
+    /// `term_key_distance` is the body's
+    /// ([`crate::rl::humanoid::EnvConfig::term_object_error`]). Not written
+    /// when 0.
+    #[serde(skip_serializing_if = "is_zero_f64")]
+    pub term_object_error: f64,
 }
 
 fn is_zero_f64(x: &f64) -> bool {
@@ -302,6 +309,7 @@ impl Default for TrainConfig {
             seam_blend_steps: 0,
             term_grace_steps: 0,
             seam_leave_search_s: 0.0,
+            term_object_error: 0.0,
         }
     }
 }
@@ -380,6 +388,7 @@ impl crate::config::Validate for TrainConfig {
             c.non_negative("ppo.policy_out_bound", b)?;
         }
         c.non_negative("term_object_distance", self.term_object_distance)?;
+        c.non_negative("term_object_error", self.term_object_error)?;
         for (skill, h) in &self.fall_height_by_skill {
             c.finite(&format!("fall_height_by_skill.{skill}"), *h as f64)?;
         }

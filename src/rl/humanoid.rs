@@ -38,7 +38,8 @@
 //!   0.3 m after the first step, or a per-skill height) terminates except for
 //!   class 0 (Getup) (`humanoid_task.py`, `skillmimic1_unified.py`); so does a
 //!   tracking failure when its thresholds are set ([`tracking_lost`]: mean
-//!   key-point distance to the reference, ball too far from the root); a
+//!   key-point distance to the reference, ball too far from the root or
+//!   from the reference's ball); a
 //!   reward-collapse termination is an option (off by default); timeouts are
 //!   truncations, bootstrapped by the trainer (as
 //!   `skillmimic/learning/common_agent.py` does). With `continue_steps` a
@@ -159,6 +160,13 @@ pub struct EnvConfig {
     /// while the reference's is not (a shot's ball may leave), m (0 = off;
     /// classes without an object never).
     pub term_object_distance: f64,
+    /// End an episode when object 0 is farther than this from the
+    /// reference's object 0 (the continued reference, anchored where the
+    /// character is), m (0 = off; only while the step has a reference;
+    /// classes without an object never): a ball that keeps near the
+    /// character but has left its dribble (rolling at the feet, its bounce
+    /// died away) ends the episode too.
+    pub term_object_error: f64,
     /// Fall thresholds replacing `fall_height` for some skills, m.
     pub fall_height_by_skill: std::collections::BTreeMap<String, f32>,
     /// Masked steps at a seam at least (Eq. 20 gives N = 0 for every
@@ -221,6 +229,7 @@ impl EnvConfig {
             continue_steps: 0,
             term_key_distance: 0.0,
             term_object_distance: 0.0,
+            term_object_error: 0.0,
             fall_height_by_skill: Default::default(),
             seam_masked_min: 0,
             residual_action: false,
@@ -434,13 +443,16 @@ pub enum Lost {
 /// of the 18 key points (root and 17 key bodies) to `reference`'s is above
 /// `key_distance` (m; only with a reference, 0 = off), or object 0 is
 /// farther than `object_distance` from the root (m; 0 = off) while the
-/// reference's object is not (so a shot's flight does not count).
+/// reference's object is not (so a shot's flight does not count), or
+/// object 0 is farther than `object_error` from the reference's object 0
+/// (m; only with a reference, 0 = off).
 pub fn tracking_lost(
     s: &State,
     reference: Option<&State>,
     sk: Skeleton,
     key_distance: f64,
     object_distance: f64,
+    object_error: f64,
 ) -> Option<Lost> {
     if key_distance > 0.0 {
         if let Some(r) = reference {
@@ -469,6 +481,17 @@ pub fn tracking_lost(
         let near_in_reference = reference.is_none_or(|r| dist(r) <= object_distance);
         if near_in_reference && dist(s) > object_distance {
             return Some(Lost::Object);
+        }
+    }
+    if let Some(r) = reference.filter(|r| object_error > 0.0 && r.obj_pos.len() >= 3) {
+        if s.obj_pos.len() >= 3 {
+            let e = (0..3)
+                .map(|i| ((s.obj_pos[i] - r.obj_pos[i]) as f64).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if e > object_error {
+                return Some(Lost::Object);
+            }
         }
     }
     None
@@ -1043,17 +1066,17 @@ impl Ctx<'_> {
     /// episode's thresholds; objects count only for classes with one).
     fn lost(&self, s: &State, reference: Option<&State>, ep: &Episode) -> Option<Lost> {
         let c = &self.cfg;
-        let obj = if no_object_class(ep.class) {
-            0.0
+        let (obj, obj_err) = if no_object_class(ep.class) {
+            (0.0, 0.0)
         } else {
-            c.term_object_distance
+            (c.term_object_distance, c.term_object_error)
         };
         let graced = c.term_grace_steps > 0
             && ep
                 .seam_t
                 .is_some_and(|t| ep.t.saturating_sub(t) <= c.term_grace_steps);
         let key = if graced { 0.0 } else { c.term_key_distance };
-        tracking_lost(s, reference, self.sk, key, obj)
+        tracking_lost(s, reference, self.sk, key, obj, obj_err)
     }
 
     /// Continue `ep`'s reference past its clip's end (see
@@ -1807,23 +1830,41 @@ mod tests {
         // 0.4 m off everywhere: lost at 0.3, kept at 0.5 and without the rule
         let s = state([0.4, 0.0, 1.0], [0.9, 0.0, 0.5]);
         assert_eq!(
-            tracking_lost(&s, Some(&r), sk, 0.3, 0.0),
+            tracking_lost(&s, Some(&r), sk, 0.3, 0.0, 0.0),
             Some(Lost::KeyPoints)
         );
-        assert_eq!(tracking_lost(&s, Some(&r), sk, 0.5, 0.0), None);
-        assert_eq!(tracking_lost(&s, Some(&r), sk, 0.0, 0.0), None);
+        assert_eq!(tracking_lost(&s, Some(&r), sk, 0.5, 0.0, 0.0), None);
+        assert_eq!(tracking_lost(&s, Some(&r), sk, 0.0, 0.0, 0.0), None);
         // masked step: no key-point test
-        assert_eq!(tracking_lost(&s, None, sk, 0.3, 0.0), None);
+        assert_eq!(tracking_lost(&s, None, sk, 0.3, 0.0, 0.0), None);
         // the ball 2 m from the root while the reference holds it
         let far = state([0.0, 0.0, 1.0], [2.0, 0.0, 0.5]);
         assert_eq!(
-            tracking_lost(&far, Some(&r), sk, 0.0, 1.5),
+            tracking_lost(&far, Some(&r), sk, 0.0, 1.5, 0.0),
             Some(Lost::Object)
         );
-        assert_eq!(tracking_lost(&far, Some(&r), sk, 0.0, 2.5), None);
+        assert_eq!(tracking_lost(&far, Some(&r), sk, 0.0, 2.5, 0.0), None);
         // a shot: the reference's ball has left too
         let shot = state([0.0, 0.0, 1.0], [3.0, 0.0, 3.0]);
-        assert_eq!(tracking_lost(&far, Some(&shot), sk, 0.0, 1.5), None);
+        assert_eq!(tracking_lost(&far, Some(&shot), sk, 0.0, 1.5, 0.0), None);
+        // the ball near the root but 0.8 m below the reference's: lost by
+        // the object-error rule at 0.75 m, kept at 1.0 m and without it
+        let rolling = state([0.0, 0.0, 1.0], [0.5, 0.0, 0.12]);
+        let high = state([0.0, 0.0, 1.0], [0.5, 0.0, 0.92]);
+        assert_eq!(
+            tracking_lost(&rolling, Some(&high), sk, 0.0, 1.5, 0.75),
+            Some(Lost::Object)
+        );
+        assert_eq!(
+            tracking_lost(&rolling, Some(&high), sk, 0.0, 1.5, 1.0),
+            None
+        );
+        assert_eq!(
+            tracking_lost(&rolling, Some(&high), sk, 0.0, 1.5, 0.0),
+            None
+        );
+        // masked step: no reference, no object-error test
+        assert_eq!(tracking_lost(&rolling, None, sk, 0.0, 0.0, 0.75), None);
     }
 
     #[test]

@@ -240,6 +240,7 @@ pub fn environment<'a>(
         },
         term_key_distance: cfg.term_key_distance,
         term_object_distance: cfg.term_object_distance,
+        term_object_error: cfg.term_object_error,
         fall_height_by_skill: cfg.fall_height_by_skill.clone(),
         seam_masked_min: cfg.seam_masked_min,
         residual_action: cfg.residual_action,

@@ -69,7 +69,15 @@ pub struct TrialRow {
     /// First step at which the root was at or below the rule's standing
     /// height (None: it stood throughout, or an nr trial).
     pub down_step: Option<u32>,
+    /// Highest point of object 0 over the trial's last
+    /// [`LATE_APEX_STEPS`] policy steps, m (NaN without an object): for a
+    /// dribble, whether the ball still bounces at the end (a ball at rest
+    /// lies at its radius, 0.12 m), which the dribble rule does not ask.
+    pub late_obj_apex: f32,
 }
+
+/// Steps at the end of a trial over which [`TrialRow::late_obj_apex`] is taken.
+pub const LATE_APEX_STEPS: usize = 100;
 
 /// A step at which the summary gives the fraction of trials still
 /// standing, with its column of `eval_summary.parquet`.
@@ -158,6 +166,7 @@ impl TableRow for LabelledTrial {
             Column::new("mean_sm", "mean SM reward per step with a reference frame (NaN if none)", |r: &R| r.trial.mean_sm),
             Column::new("final_root_z", "root height at the end of the trial, m", |r: &R| r.trial.final_root_z),
             Column::new("down_step", "first policy step at which the root was at or below the rule's standing height (0.5 m; 0.7 for getup and run_no_object); null if it stood throughout or for nr", |r: &R| r.trial.down_step),
+            Column::new("late_obj_apex", "highest point of object 0 over the last 100 policy steps of the trial, m (NaN without an object; a ball at rest lies at 0.12 m)", |r: &R| r.trial.late_obj_apex),
         ]
     }
 }
