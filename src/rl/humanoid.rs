@@ -472,29 +472,27 @@ pub fn tracking_lost(
         }
     }
     if object_distance > 0.0 && s.obj_pos.len() >= 3 {
-        let dist = |x: &State| {
-            (0..3)
-                .map(|i| ((x.obj_pos[i] - x.root_pos[i]) as f64).powi(2))
-                .sum::<f64>()
-                .sqrt()
-        };
-        let near_in_reference = reference.is_none_or(|r| dist(r) <= object_distance);
-        if near_in_reference && dist(s) > object_distance {
+        let near_in_reference =
+            reference.is_none_or(|r| dist3(&r.obj_pos, &r.root_pos) <= object_distance);
+        if near_in_reference && dist3(&s.obj_pos, &s.root_pos) > object_distance {
             return Some(Lost::Object);
         }
     }
     if let Some(r) = reference.filter(|r| object_error > 0.0 && r.obj_pos.len() >= 3) {
-        if s.obj_pos.len() >= 3 {
-            let e = (0..3)
-                .map(|i| ((s.obj_pos[i] - r.obj_pos[i]) as f64).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            if e > object_error {
-                return Some(Lost::Object);
-            }
+        if s.obj_pos.len() >= 3 && dist3(&s.obj_pos, &r.obj_pos) > object_error {
+            return Some(Lost::Object);
         }
     }
     None
+}
+
+/// Distance between the points in the first three values of `a` and `b`,
+/// m, the differences taken in f32 and squared and summed in f64.
+fn dist3(a: &[f32], b: &[f32]) -> f64 {
+    (0..3)
+        .map(|i| ((a[i] - b[i]) as f64).powi(2))
+        .sum::<f64>()
+        .sqrt()
 }
 
 /// Push `f` as the newest frame of a `[k*C]` history.
