@@ -33,6 +33,8 @@ pub enum Command {
     CheckFk(StageArgs),
     /// What the clips' contact flag measures: simulated contact rules against it, frame by frame
     CheckContact(StageArgs),
+    /// Whether the clips' own motion keeps their ball: the humanoid replayed frame by frame, the ball simulated
+    CheckBall(StageArgs),
     /// Where each clip's reference continues past its end in training (loop seams and their similarity)
     Seams(StageArgs),
     /// Summarise a skillaug Parquet file: rows, clips, skills, frames, value ranges

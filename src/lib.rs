@@ -91,6 +91,7 @@ pub fn run(cli: Cli) -> Result<()> {
         }
         Command::CheckFk(a) => stage::check_fk::run(&stage::Common::new(a)?),
         Command::CheckContact(a) => stage::check_contact::run(&stage::Common::new(a)?),
+        Command::CheckBall(a) => stage::check_ball::run(&stage::Common::new(a)?),
         Command::Seams(a) => stage::seams::run(&stage::Common::new(a)?),
         Command::Inspect(a) => stage::inspect::run(&a.file),
         Command::Schema(a) => {

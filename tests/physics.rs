@@ -349,3 +349,51 @@ fn seams_and_check_contact_print_a_row_per_clip() {
         "{text}"
     );
 }
+
+#[test]
+fn a_ball_replayed_under_the_clips_motion_falls_and_bounces_as_the_clips_does() {
+    let (_d, lib, model) = ballplay();
+    let found = checks::ball_replays(&lib, &model, &data_root()).unwrap();
+    assert_eq!(found.len(), 6, "every BallPlay clip has its ball");
+    let by_name = |n: &str| {
+        found
+            .iter()
+            .find(|(c, _, _)| lib.clips[*c].name == n)
+            .map(|(_, d, k)| (d.clone(), k.clone()))
+            .unwrap()
+    };
+    // run2 starts with the ball falling free to its first bounce: no hand
+    // acts on it, so the simulated ball must hit the floor as fast as the
+    // clip's and rise as high after it (restitution 0.81 against the
+    // clip's own rebound), whatever the body does
+    let (d, k) = by_name("013_018pickle_run2_5");
+    for r in [&d, &k] {
+        let (i_ref, i_sim) = (r.impact_ref.unwrap(), r.impact_sim.unwrap());
+        assert!((i_sim - i_ref).abs() < 0.05 * i_ref, "{r:?}");
+        let (a_ref, a_sim) = (r.apex_ref.unwrap(), r.apex_sim.unwrap());
+        assert!((a_sim - a_ref).abs() < 0.1 * a_ref, "{r:?}");
+    }
+    // run pushes the ball down before its first bounce: its bounce is found
+    // in both series, the error is a distance and the kinematic body (never
+    // pushed back) drives the ball at least as hard as the dynamic one
+    let (d, k) = by_name("013_018pickle_run_4");
+    assert!(d.err_mean >= 0.0 && d.err_mean.is_finite() && d.steps == 78);
+    assert!(
+        k.impact_sim.unwrap() >= d.impact_sim.unwrap(),
+        "{d:?} {k:?}"
+    );
+    let (_d2, run) = ingested("ballplay");
+    let out = run.join("x");
+    let text = ok(&[
+        "check-ball",
+        "--from",
+        run.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        text.lines().filter(|l| l.contains("pickle")).count(),
+        6,
+        "{text}"
+    );
+}

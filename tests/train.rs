@@ -82,6 +82,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.seam_leave_search_s=0.5",
             "--set",
             "train.term_object_error=0.75",
+            "--set",
+            "train.reward_weights={ opv = 0.5, op = 2.0 }",
         ],
     );
 }
@@ -633,6 +635,55 @@ fn blended_seams_turn_the_jump_into_a_transition() {
     let (jump, blended) = (seam_move(0, 2), seam_move(8, 2));
     eprintln!("after 2 masked steps: {jump:.3} m jumping, {blended:.3} m blended");
     assert!(blended < 0.75 * jump, "{blended} vs {jump}");
+}
+
+#[test]
+fn reward_weight_overrides_change_the_training_reward_not_the_reported_sm() {
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        ..TrainConfig::default()
+    };
+    let (_dir, s) = ballplay_setup(&base);
+    let run = |cfg: &TrainConfig| {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let n = 4;
+        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
+        let zeros = vec![0f32; n * env.act_dim()];
+        for _ in 0..30 {
+            env.step(&zeros, &mut rng).unwrap();
+        }
+        env.take_stats()
+    };
+    let paper = run(&base);
+    // the paper's SM: the training reward is the SM reward
+    assert_eq!(paper.reward_sum, paper.sm_sum);
+    let heavy = TrainConfig {
+        reward_weights: toml::from_str("opv = 5.0").unwrap(),
+        ..base.clone()
+    };
+    let o = run(&heavy);
+    // the same rollout (zero actions, same seed) scored the paper's way...
+    assert_eq!(o.steps, paper.steps);
+    assert_eq!(o.sm_sum, paper.sm_sum);
+    // ...but trained on a ball-velocity term that is never met exactly,
+    // so every rewarded step scores lower
+    assert!(
+        o.reward_sum < 0.9 * o.sm_sum,
+        "{} vs {}",
+        o.reward_sum,
+        o.sm_sum
+    );
+    // an unknown key or a negative weight is refused with its name
+    let e = toml::from_str::<skillaug::reward::WeightOverrides>("opw = 1.0").unwrap_err();
+    assert!(e.to_string().contains("opw"), "{e}");
+    let bad = TrainConfig {
+        reward_weights: toml::from_str("rel = -1.0").unwrap(),
+        ..base
+    };
+    let e = skillaug::config::Validate::validate(&bad, "train")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("train.reward_weights.rel"), "{e}");
 }
 
 #[test]

@@ -370,6 +370,9 @@ pub fn plan_cells(
             contact_radius: t.contact_radius,
             root_rot: t.root_rot,
             smoothness: t.smoothness,
+            // trials are scored with the paper's weights, whatever
+            // `train.reward_weights` trained the policy on
+            weights: Default::default(),
         },
         residual_action: t.residual_action,
         reference_obs: t.reference_obs,

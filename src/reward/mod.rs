@@ -162,6 +162,102 @@ impl Weights {
     }
 }
 
+/// Per-term replacements of the training reward's weights
+/// (`train.reward_weights`, for example `{ opv = 0.5 }`): each given key
+/// replaces that lambda of [`Weights::sm`] or [`Weights::dm`] for the
+/// classes with an object (classes 0 and 10 keep their body-only weights,
+/// [`Weights::without_object`]). The mean SM reward that training and
+/// evaluation report is still scored with the paper's weights, so runs stay
+/// comparable. Every key absent (the default) leaves the paper's weights.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WeightOverrides {
+    /// Key-point position.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub p: Option<f64>,
+    /// Root and joint rotation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub r: Option<f64>,
+    /// Key-point velocity.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pv: Option<f64>,
+    /// Joint velocity.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rv: Option<f64>,
+    /// Object position.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub op: Option<f64>,
+    /// Object rotation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub or: Option<f64>,
+    /// Object linear velocity, (s/m)^2: lambda_opv of Eq. 14 (0 in the
+    /// paper's Table 8 and in the reference code's `skillmimic.yaml`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub opv: Option<f64>,
+    /// Object angular velocity.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub orv: Option<f64>,
+    /// Relative motion.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rel: Option<f64>,
+    /// Contact graph: ball-hands, ball-body, body-hands.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cg: Option<[f64; 3]>,
+}
+
+impl WeightOverrides {
+    /// No key given.
+    pub fn is_empty(&self) -> bool {
+        *self == WeightOverrides::default()
+    }
+
+    /// `w` with every given key replaced.
+    pub fn apply(&self, w: Weights) -> Weights {
+        Weights {
+            p: self.p.unwrap_or(w.p),
+            r: self.r.unwrap_or(w.r),
+            pv: self.pv.unwrap_or(w.pv),
+            rv: self.rv.unwrap_or(w.rv),
+            op: self.op.unwrap_or(w.op),
+            or: self.or.unwrap_or(w.or),
+            opv: self.opv.unwrap_or(w.opv),
+            orv: self.orv.unwrap_or(w.orv),
+            rel: self.rel.unwrap_or(w.rel),
+            cg: self.cg.unwrap_or(w.cg),
+        }
+    }
+
+    /// Every given weight finite and >= 0.
+    ///
+    /// # Errors
+    /// The first key that is not, named as `stage.reward_weights.KEY`.
+    pub fn check(&self, stage: &str) -> anyhow::Result<()> {
+        let cg = self.cg.unwrap_or_default();
+        let keys = [
+            ("p", self.p),
+            ("r", self.r),
+            ("pv", self.pv),
+            ("rv", self.rv),
+            ("op", self.op),
+            ("or", self.or),
+            ("opv", self.opv),
+            ("orv", self.orv),
+            ("rel", self.rel),
+            ("cg[0]", Some(cg[0])),
+            ("cg[1]", Some(cg[1])),
+            ("cg[2]", Some(cg[2])),
+        ];
+        for (k, v) in keys {
+            if let Some(v) = v {
+                if !(v.is_finite() && v >= 0.0) {
+                    anyhow::bail!("{stage}.reward_weights.{k} = {v}: needs a finite value >= 0");
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 /// How the contact-graph term is computed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -246,6 +342,8 @@ pub struct RewardOptions {
     /// Multiply by the reference code's smoothness factor (needs the previous
     /// simulated joint velocities).
     pub smoothness: bool,
+    /// Replacements of the training reward's weights (none by default).
+    pub weights: WeightOverrides,
 }
 
 impl Default for RewardOptions {
@@ -256,6 +354,7 @@ impl Default for RewardOptions {
             contact_radius: 0.2,
             root_rot: RootRot::Nearest,
             smoothness: false,
+            weights: WeightOverrides::default(),
         }
     }
 }

@@ -5,7 +5,7 @@
 
 use crate::augment::ats::Update;
 use crate::augment::settings::StfConfig;
-use crate::reward::{ContactDetect, ContactRule, RootRot};
+use crate::reward::{ContactDetect, ContactRule, RootRot, WeightOverrides};
 use crate::rl::humanoid::{MaskedReward, Method};
 use crate::rl::PpoConfig;
 use anyhow::Result;
@@ -204,6 +204,11 @@ pub struct TrainConfig {
     /// when 0.
     #[serde(skip_serializing_if = "is_zero_f64")]
     pub term_object_error: f64,
+    /// Replacements of the training reward's weights, for example
+    /// `{ opv = 0.5 }` ([`crate::reward::WeightOverrides`]); empty = the
+    /// paper's Table 8 (SM) or Table 9 (DM). Not written when empty.
+    #[serde(default, skip_serializing_if = "WeightOverrides::is_empty")]
+    pub reward_weights: WeightOverrides,
 }
 
 fn is_zero_f64(x: &f64) -> bool {
@@ -310,6 +315,7 @@ impl Default for TrainConfig {
             term_grace_steps: 0,
             seam_leave_search_s: 0.0,
             term_object_error: 0.0,
+            reward_weights: WeightOverrides::default(),
         }
     }
 }
@@ -389,6 +395,7 @@ impl crate::config::Validate for TrainConfig {
         }
         c.non_negative("term_object_distance", self.term_object_distance)?;
         c.non_negative("term_object_error", self.term_object_error)?;
+        self.reward_weights.check(stage)?;
         for (skill, h) in &self.fall_height_by_skill {
             c.finite(&format!("fall_height_by_skill.{skill}"), *h as f64)?;
         }

@@ -817,10 +817,10 @@ type Started = (World, Episode, Vec<f32>);
 impl Ctx<'_> {
     fn weights(&self, class: u32) -> (Weights, Weights) {
         let sm = Weights::sm(self.kind);
-        let train = match self.cfg.method {
+        let train = self.cfg.reward.weights.apply(match self.cfg.method {
             Method::Sm => sm,
             Method::Dm => Weights::dm(self.kind),
-        };
+        });
         if no_object_class(class) {
             (train.without_object(), sm.without_object())
         } else {
@@ -930,7 +930,10 @@ impl Ctx<'_> {
                 let terms = reward::sm_reward(&s, r, &c, self.sk, &ep.sm_weights, opts, prev);
                 let sm = terms.total;
                 let train = match self.cfg.method {
-                    Method::Sm => sm,
+                    Method::Sm if ep.weights == ep.sm_weights => sm,
+                    Method::Sm => {
+                        reward::sm_reward(&s, r, &c, self.sk, &ep.weights, opts, prev).total
+                    }
                     Method::Dm => reward::dm_reward(&s, r, self.sk, &ep.weights, opts.root_rot),
                 };
                 (

@@ -232,6 +232,7 @@ pub fn environment<'a>(
             contact_radius: cfg.contact_radius,
             root_rot: cfg.root_rot,
             smoothness: cfg.smoothness,
+            weights: cfg.reward_weights,
         },
         continue_steps: if cfg.continuation {
             cfg.episode_length

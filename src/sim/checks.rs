@@ -14,6 +14,9 @@
 //! - [`contact_agreement`] and [`ContactAgreement::all`] (`skillaug
 //!   check-contact`): simulated contact rules against a clip's contact
 //!   flag, frame by frame, and the proximity radius that agrees best.
+//! - [`ball_replay`] (`skillaug check-ball`): the humanoid replayed from a
+//!   clip frame by frame while its ball is simulated, and how far the ball
+//!   follows the clip's.
 
 use super::mjcf::Model;
 use super::objects::ObjectSpec;
@@ -392,4 +395,151 @@ pub fn accuracy(lib: &MotionLib, model: &Model, opts: &SimOptions) -> Result<Acc
         worlds: starts.len(),
         stress: stress(model, opts, &starts, 5.0, 1.0, 7)?,
     })
+}
+
+/// What [`ball_replay`] saw on one clip.
+#[derive(Clone, Debug)]
+pub struct BallReplay {
+    /// Policy steps replayed.
+    pub steps: usize,
+    /// Mean distance of the simulated ball to the clip's, m.
+    pub err_mean: f64,
+    /// That distance after 0.5 s (or at the last step of a shorter replay), m.
+    pub err_half_s: f64,
+    /// Downward speed of the clip's ball before its first bounce, m/s.
+    pub impact_ref: Option<f64>,
+    /// The same of the simulated ball, m/s.
+    pub impact_sim: Option<f64>,
+    /// Top height of the clip's ball after its first bounce, m.
+    pub apex_ref: Option<f64>,
+    /// The same of the simulated ball, m.
+    pub apex_sim: Option<f64>,
+}
+
+/// The ball's first bounce in a series of heights `z` (m) and vertical
+/// velocities `vz` (m/s): the first step whose velocity turns from below
+/// zero to above it with the ball within 0.3 m of the floor (the ball's
+/// radius is 0.12 m). Returns its largest downward speed since the ball
+/// last rose, and its top height between the bounce and its next turn
+/// downwards; `None` where the series has no bounce (or no turn after it).
+pub fn first_bounce(z: &[f64], vz: &[f64]) -> (Option<f64>, Option<f64>) {
+    let Some(b) =
+        (1..vz.len()).find(|&i| vz[i - 1] < 0.0 && vz[i] > 0.0 && z[i].min(z[i - 1]) < 0.3)
+    else {
+        return (None, None);
+    };
+    let fall = (0..b).rev().find(|&i| vz[i] >= 0.0).map_or(0, |i| i + 1);
+    let impact = vz[fall..b].iter().map(|v| -v).fold(0.0, f64::max);
+    let apex = (b + 1..vz.len())
+        .find(|&i| vz[i - 1] > 0.0 && vz[i] <= 0.0)
+        .map(|end| z[b..=end].iter().copied().fold(f64::MIN, f64::max));
+    (Some(impact), apex)
+}
+
+/// The first frame reference state initialisation starts from (frames 0
+/// and 1 never are: Ingrid789/SkillMimic-V2
+/// `skillmimic/utils/motion_data_handler.py`).
+pub const RSI_FIRST_FRAME: usize = 2;
+
+/// Clip `clip` replayed in a world with `objects` (object 0 the ball): the
+/// ball starts in the state of the clip's first valid frame from
+/// [`RSI_FIRST_FRAME`] on; before every policy
+/// step the humanoid (never the ball) is set to the clip's frame and the PD
+/// targets to the next frame's pose, and the simulated ball is compared
+/// with the next frame's. `kinematic` makes the humanoid's bodies kinematic
+/// ([`World::humanoid_kinematic`]): they move the ball with the clip's
+/// velocities and are not pushed back. Ends at the clip's last frame or its
+/// first missing one. `None` for a clip without objects or with fewer than
+/// two valid frames.
+///
+/// # Errors
+/// A world that cannot be built or a state it refuses (the message names
+/// the frame).
+pub fn ball_replay(
+    lib: &MotionLib,
+    clip: usize,
+    model: &Model,
+    objects: &[ObjectSpec],
+    opts: &SimOptions,
+    kinematic: bool,
+) -> Result<Option<BallReplay>> {
+    let f = &lib.frames[clip];
+    if f.n_objects == 0 || objects.is_empty() {
+        return Ok(None);
+    }
+    let Some(first) = (RSI_FIRST_FRAME..f.frames).find(|&i| f.valid[i]) else {
+        return Ok(None);
+    };
+    let mut w = World::new(model, objects, opts)?;
+    w.set_state(&f.state(first).expect("valid"))
+        .with_context(|| format!("frame {first}"))?;
+    w.humanoid_kinematic(kinematic);
+    let (mut zs, mut vs, mut zr, mut vr, mut errs) = (vec![], vec![], vec![], vec![], vec![]);
+    let half = (0.5 / opts.policy_dt() as f64).round() as usize;
+    for i in first..f.frames - 1 {
+        let (Some(mut s), Some(next)) = (f.state(i), f.state(i + 1)) else {
+            break;
+        };
+        let g = w.get_state();
+        s.obj_pos = g.obj_pos;
+        s.obj_rot = g.obj_rot;
+        s.obj_linvel = g.obj_linvel;
+        s.obj_angvel = g.obj_angvel;
+        w.set_state(&s).with_context(|| format!("frame {i}"))?;
+        w.set_joint_targets(&next.joint_rot);
+        w.step();
+        let g = w.get_state();
+        let d: f64 = (0..3)
+            .map(|k| (g.obj_pos[k] as f64 - next.obj_pos[k] as f64).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        errs.push(d);
+        zs.push(g.obj_pos[2] as f64);
+        vs.push(g.obj_linvel[2] as f64);
+        zr.push(next.obj_pos[2] as f64);
+        vr.push(next.obj_linvel[2] as f64);
+    }
+    if errs.is_empty() {
+        return Ok(None);
+    }
+    let (impact_ref, apex_ref) = first_bounce(&zr, &vr);
+    let (impact_sim, apex_sim) = first_bounce(&zs, &vs);
+    Ok(Some(BallReplay {
+        steps: errs.len(),
+        err_mean: errs.iter().sum::<f64>() / errs.len() as f64,
+        err_half_s: errs[half.min(errs.len()) - 1],
+        impact_ref,
+        impact_sim,
+        apex_ref,
+        apex_sim,
+    }))
+}
+
+/// [`ball_replay`] of every clip of `lib` that has objects, with a dynamic
+/// and with a kinematic humanoid, in parallel (objects read under data root
+/// `root`, each clip at its frame rate): `(clip id, dynamic, kinematic)`
+/// in clip order.
+///
+/// # Errors
+/// An object that cannot be read, or as [`ball_replay`] (the message names
+/// the clip).
+pub fn ball_replays(
+    lib: &MotionLib,
+    model: &Model,
+    root: &Path,
+) -> Result<Vec<(usize, BallReplay, BallReplay)>> {
+    let per_clip = (0..lib.clips.len())
+        .into_par_iter()
+        .map(|c| {
+            let row = &lib.clips[c];
+            let objs = super::objects::load_all(&row.objects, root)?;
+            let opts = SimOptions::for_fps(row.fps as f64);
+            let dynamic = ball_replay(lib, c, model, &objs, &opts, false)
+                .with_context(|| format!("clip {}", row.name))?;
+            let kinematic = ball_replay(lib, c, model, &objs, &opts, true)
+                .with_context(|| format!("clip {}", row.name))?;
+            Ok(dynamic.zip(kinematic).map(|(d, k)| (c, d, k)))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(per_clip.into_iter().flatten().collect())
 }

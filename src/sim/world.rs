@@ -847,6 +847,20 @@ impl World {
         Ok(())
     }
 
+    /// Make every humanoid body kinematic (moved by the velocities last set,
+    /// pushing objects without being pushed back: an infinitely strong
+    /// body) or dynamic again, for diagnostics (`skillaug check-ball`).
+    pub fn humanoid_kinematic(&mut self, on: bool) {
+        let t = if on {
+            RigidBodyType::KinematicVelocityBased
+        } else {
+            RigidBodyType::Dynamic
+        };
+        for &b in &self.bodies {
+            self.pw.bodies[b].set_body_type(t, true);
+        }
+    }
+
     /// Hold the root body in place (fixed) or let it move (dynamic), for
     /// drive tests and diagnostics.
     pub fn pin_root(&mut self, pinned: bool) {

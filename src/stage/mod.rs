@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod build_stg;
+pub mod check_ball;
 pub mod check_contact;
 pub mod check_fk;
 pub mod eval;
