@@ -373,15 +373,19 @@ fn a_ball_replayed_under_the_clips_motion_falls_and_bounces_as_the_clips_does() 
         let (a_ref, a_sim) = (r.apex_ref.unwrap(), r.apex_sim.unwrap());
         assert!((a_sim - a_ref).abs() < 0.1 * a_ref, "{r:?}");
     }
-    // run pushes the ball down before its first bounce: its bounce is found
-    // in both series, the error is a distance and the kinematic body (never
-    // pushed back) drives the ball at least as hard as the dynamic one
+    // run pushes the ball down before its first bounce: the kinematic body
+    // (never pushed back) drives the ball at least as hard as the dynamic
+    // one, and neither sends it as high as the clip's ball goes (the gap
+    // docs/training.md measures: 0.80 / 0.93 m against 1.26 m)
     let (d, k) = by_name("013_018pickle_run_4");
     assert!(d.err_mean >= 0.0 && d.err_mean.is_finite() && d.steps == 78);
     assert!(
         k.impact_sim.unwrap() >= d.impact_sim.unwrap(),
         "{d:?} {k:?}"
     );
+    for r in [&d, &k] {
+        assert!(r.apex_sim.unwrap() < 0.85 * r.apex_ref.unwrap(), "{r:?}");
+    }
     let (_d2, run) = ingested("ballplay");
     let out = run.join("x");
     let text = ok(&[

@@ -507,7 +507,7 @@ pub fn ball_replay(
     Ok(Some(BallReplay {
         steps: errs.len(),
         err_mean: errs.iter().sum::<f64>() / errs.len() as f64,
-        err_half_s: errs[half.min(errs.len()) - 1],
+        err_half_s: errs[half.clamp(1, errs.len()) - 1],
         impact_ref,
         impact_sim,
         apex_ref,
