@@ -23,6 +23,7 @@ use super::objects::ObjectSpec;
 use super::rot;
 use super::vec_env::VecEnv;
 use super::world::{Part, SimOptions, World};
+use crate::augment::ats::start_frames;
 use crate::ingest::Ingested;
 use crate::motion::clip::AngvelFrame;
 use crate::motion::state::State;
@@ -436,14 +437,9 @@ pub fn first_bounce(z: &[f64], vz: &[f64]) -> (Option<f64>, Option<f64>) {
     (Some(impact), apex)
 }
 
-/// The first frame reference state initialisation starts from (frames 0
-/// and 1 never are: Ingrid789/SkillMimic-V2
-/// `skillmimic/utils/motion_data_handler.py`).
-pub const RSI_FIRST_FRAME: usize = 2;
-
 /// Clip `clip` replayed in a world with `objects` (object 0 the ball): the
-/// ball starts in the state of the clip's first valid frame from
-/// [`RSI_FIRST_FRAME`] on; before every policy
+/// ball starts in the state of the clip's first allowed start frame
+/// ([`crate::augment::ats::start_frames`], the RSI rule); before every policy
 /// step the humanoid (never the ball) is set to the clip's frame and the PD
 /// targets to the next frame's pose, and the simulated ball is compared
 /// with the next frame's. `kinematic` makes the humanoid's bodies kinematic
@@ -467,7 +463,7 @@ pub fn ball_replay(
     if f.n_objects == 0 || objects.is_empty() {
         return Ok(None);
     }
-    let Some(first) = (RSI_FIRST_FRAME..f.frames).find(|&i| f.valid[i]) else {
+    let Some(first) = start_frames(f).iter().position(|&ok| ok) else {
         return Ok(None);
     };
     let mut w = World::new(model, objects, opts)?;

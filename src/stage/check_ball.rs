@@ -1,7 +1,7 @@
 //! `skillaug check-ball`: can the clips' own motion keep their ball? Every
 //! clip with a ball (an ingested run folder, `--from`) is replayed with the
 //! humanoid set to each frame in turn while the ball is simulated from the
-//! first RSI frame (2) on ([`crate::sim::checks::ball_replays`]), once with the
+//! first RSI start frame on ([`crate::sim::checks::ball_replays`]), once with the
 //! humanoid's bodies dynamic (the ball pushes back on the hands, as in
 //! training) and once kinematic (an infinitely strong body). It prints how
 //! far the simulated ball ends from the clip's and how hard it hits the
