@@ -257,13 +257,32 @@ pub fn contact_agreements(
     model: &Model,
     root: &Path,
 ) -> Result<Vec<(usize, ContactAgreement)>> {
+    per_clip_with_objects(lib, root, |c, objs, opts| {
+        contact_agreement(lib, c, model, objs, opts)
+    })
+}
+
+/// `check(clip, its objects, its simulation options)` on every clip of
+/// `lib` in parallel, each with its objects read under data root `root`
+/// and at its frame rate: `(clip id, result)` in clip order for the clips
+/// whose check returns `Some`.
+///
+/// # Errors
+/// An object that cannot be read, or the first error of `check`, named by
+/// its clip.
+fn per_clip_with_objects<T: Send>(
+    lib: &MotionLib,
+    root: &Path,
+    check: impl Fn(usize, &[ObjectSpec], &SimOptions) -> Result<Option<T>> + Sync,
+) -> Result<Vec<(usize, T)>> {
     let per_clip = (0..lib.clips.len())
         .into_par_iter()
         .map(|c| {
             let row = &lib.clips[c];
             let objs = super::objects::load_all(&row.objects, root)?;
             let opts = SimOptions::for_fps(row.fps as f64);
-            contact_agreement(lib, c, model, &objs, &opts).map(|a| a.map(|a| (c, a)))
+            let found = check(c, &objs, &opts).with_context(|| format!("clip {}", row.name))?;
+            Ok(found.map(|t| (c, t)))
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(per_clip.into_iter().flatten().collect())
@@ -524,18 +543,10 @@ pub fn ball_replays(
     model: &Model,
     root: &Path,
 ) -> Result<Vec<(usize, BallReplay, BallReplay)>> {
-    let per_clip = (0..lib.clips.len())
-        .into_par_iter()
-        .map(|c| {
-            let row = &lib.clips[c];
-            let objs = super::objects::load_all(&row.objects, root)?;
-            let opts = SimOptions::for_fps(row.fps as f64);
-            let dynamic = ball_replay(lib, c, model, &objs, &opts, false)
-                .with_context(|| format!("clip {}", row.name))?;
-            let kinematic = ball_replay(lib, c, model, &objs, &opts, true)
-                .with_context(|| format!("clip {}", row.name))?;
-            Ok(dynamic.zip(kinematic).map(|(d, k)| (c, d, k)))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    Ok(per_clip.into_iter().flatten().collect())
+    let both = per_clip_with_objects(lib, root, |c, objs, opts| {
+        let dynamic = ball_replay(lib, c, model, objs, opts, false)?;
+        let kinematic = ball_replay(lib, c, model, objs, opts, true)?;
+        Ok(dynamic.zip(kinematic))
+    })?;
+    Ok(both.into_iter().map(|(c, (d, k))| (c, d, k)).collect())
 }
