@@ -528,13 +528,42 @@ pub fn sm_reward(
     prev_joint_vel: Option<&[f32]>,
 ) -> SmTerms {
     let e = errors_with(sim, reference, sk, opts.root_rot);
-    let mut body = body_factor(&e, w);
-    if opts.smoothness {
-        if let Some(prev) = prev_joint_vel {
-            body *= smoothness(&sim.joint_vel, prev, &reference.joint_vel);
-        }
+    let smooth = smoothness_factor(sim, reference, opts, prev_joint_vel);
+    sm_terms(&e, smooth, reference, sim_contacts, w, opts)
+}
+
+/// The reference code's smoothness factor of `sim` against `reference`
+/// when `opts` asks for it and the previous joint velocities are known
+/// ([`smoothness`]), else `None`.
+pub fn smoothness_factor(
+    sim: &State,
+    reference: &State,
+    opts: &RewardOptions,
+    prev_joint_vel: Option<&[f32]>,
+) -> Option<f64> {
+    prev_joint_vel
+        .filter(|_| opts.smoothness)
+        .map(|prev| smoothness(&sim.joint_vel, prev, &reference.joint_vel))
+}
+
+/// The SM factors and their product (Eqs. 12-17) from errors `e` already
+/// measured against `reference` ([`errors_with`]) and the smoothness factor
+/// `smooth` ([`smoothness_factor`]), under weights `w`: [`sm_reward`] without
+/// measuring the errors again, so that one step can be scored under two
+/// sets of weights.
+pub fn sm_terms(
+    e: &Errors,
+    smooth: Option<f64>,
+    reference: &State,
+    sim_contacts: &Contacts,
+    w: &Weights,
+    opts: &RewardOptions,
+) -> SmTerms {
+    let mut body = body_factor(e, w);
+    if let Some(f) = smooth {
+        body *= f;
     }
-    let object = object_factor(&e, w);
+    let object = object_factor(e, w);
     let rel = (-w.rel * e.rel).exp();
     let r = Contacts::of_reference(reference);
     let b = |x: bool| -> f64 {

@@ -927,13 +927,14 @@ impl Ctx<'_> {
                     opts.contact_radius,
                 );
                 let prev = Some(ep.prev_joint_vel.as_slice());
-                let terms = reward::sm_reward(&s, r, &c, self.sk, &ep.sm_weights, opts, prev);
+                let e = reward::errors_with(&s, r, self.sk, opts.root_rot);
+                let smooth = reward::smoothness_factor(&s, r, opts, prev);
+                let terms = reward::sm_terms(&e, smooth, r, &c, &ep.sm_weights, opts);
                 let sm = terms.total;
                 let train = match self.cfg.method {
                     Method::Sm if ep.weights == ep.sm_weights => sm,
-                    Method::Sm => {
-                        reward::sm_reward(&s, r, &c, self.sk, &ep.weights, opts, prev).total
-                    }
+                    // `train.reward_weights`: the same errors, other weights
+                    Method::Sm => reward::sm_terms(&e, smooth, r, &c, &ep.weights, opts).total,
                     Method::Dm => reward::dm_reward(&s, r, self.sk, &ep.weights, opts.root_rot),
                 };
                 (
