@@ -20,6 +20,7 @@ pub const STAGES: &[&str] = &[
     "train",
     "eval",
     "run",
+    "check-ball",
 ];
 
 /// A parsed recipe (empty when no file is given).

@@ -270,7 +270,7 @@ pub fn contact_agreements(
 /// # Errors
 /// An object that cannot be read, or the first error of `check`, named by
 /// its clip.
-fn per_clip_with_objects<T: Send>(
+pub(crate) fn per_clip_with_objects<T: Send>(
     lib: &MotionLib,
     root: &Path,
     check: impl Fn(usize, &[ObjectSpec], &SimOptions) -> Result<Option<T>> + Sync,

@@ -7,6 +7,7 @@ pub mod bench;
 pub mod checks;
 pub mod mjcf;
 pub mod objects;
+pub mod push;
 pub mod rot;
 pub mod vec_env;
 pub mod world;

@@ -7,18 +7,27 @@
 //! far the simulated ball ends from the clip's and how hard it hits the
 //! floor at its first bounce and how high it rises after it, beside the
 //! clip's own figures.
+//!
+//! With `--set check-ball.push_search=true` it then searches, for every
+//! push window of every ball clip, PD target offsets on the arms and on
+//! the upper body that bring the ball's release velocity to the clip's
+//! ([`crate::sim::push`]), and prints the vertical release velocity of the
+//! clip, of the PD replay of its own targets and of the two searches, with
+//! the size of the offsets found.
 
 use super::Common;
 use crate::sim::checks::ball_replays;
 use crate::sim::mjcf::Model;
+use crate::sim::push::{fit_pushes, PushConfig};
 use anyhow::{bail, Result};
 
 fn opt(x: Option<f64>) -> String {
     x.map_or_else(|| "-".to_string(), |v| format!("{v:.2}"))
 }
 
-/// Run the command: print the table.
+/// Run the command: print the table (and the push search's, when on).
 pub fn run(common: &Common) -> Result<()> {
+    let cfg: PushConfig = common.settings("check-ball")?;
     let lib = crate::table::load_library(common.input_dir())?;
     let root = crate::dataset::data_root(common.args.data_root.as_deref())?;
     let model = Model::for_skeleton(&root, lib.skeleton)?;
@@ -56,5 +65,53 @@ pub fn run(common: &Common) -> Result<()> {
         );
     }
     println!("d: dynamic humanoid (the ball pushes back); k: kinematic humanoid (it does not)");
+    if cfg.push_search {
+        print_push_search(&lib, &model, &root, &cfg, common.args.seed)?;
+    }
+    Ok(())
+}
+
+fn print_push_search(
+    lib: &crate::motion::MotionLib,
+    model: &Model,
+    root: &std::path::Path,
+    cfg: &PushConfig,
+    seed: u64,
+) -> Result<()> {
+    let fits = fit_pushes(lib, model, root, cfg, seed)?;
+    println!();
+    println!(
+        "push windows: ball v_z at the release, m/s (speed error |v - v_ref|), under PD from the window's first frame"
+    );
+    println!(
+        "{:<34} {:>9}  {:>6}  {:>13}  {:>13}  {:>13}  {:>11}  {:>11}",
+        "clip", "frames", "clip", "own targets", "arms", "upper body", "arms rad", "upper rad"
+    );
+    for p in &fits {
+        let err = |v: &[f64; 3]| -> f64 {
+            (0..3)
+                .map(|k| (v[k] - p.vel_ref[k]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        };
+        let cell = |v: &[f64; 3]| format!("{:6.2} ({:4.2})", v[2], err(v));
+        println!(
+            "{:<34} {:>4}-{:<4}  {:>6.2}  {:>13}  {:>13}  {:>13}  {:>4.2} / {:>4.2}  {:>4.2} / {:>4.2}",
+            lib.clips[p.clip].name,
+            p.window.start,
+            p.window.release,
+            p.vel_ref[2],
+            cell(&p.replay.vel),
+            cell(&p.arms.vel),
+            cell(&p.upper.vel),
+            p.arms.rms_offset,
+            p.arms.max_offset,
+            p.upper.rms_offset,
+            p.upper.max_offset,
+        );
+    }
+    println!(
+        "offsets: RMS / largest over the searched axes; arms: shoulders, elbows, wrists; upper body: also torso, spine, chest, thorax, neck"
+    );
     Ok(())
 }

@@ -1,0 +1,359 @@
+//! Push search: are there PD targets near a clip's own that make the
+//! simulated ball leave the hand as the clip's ball does?
+//!
+//! [`crate::sim::checks::ball_replay`] showed that the clips' own motion,
+//! set into the simulator frame by frame, does not keep their ball up. This
+//! module asks the next question of issue 16's item 5 ("better targets you
+//! find and measure by open-loop replay"): over each *push window* of a
+//! ball clip (consecutive frames where the clip's ball descends with a hand
+//! body's origin within `hand_radius` of its centre, [`push_windows`]), the
+//! humanoid and the ball start from the clip's state at the window's first
+//! frame and the humanoid is driven by PD alone (no frame is set again, as
+//! in training) towards the next frame's joint rotations plus an offset
+//! held over the window on a group of joints: the arms (shoulders, elbows,
+//! wrists) or the whole upper body (the arms plus the torso, spine, chest,
+//! thorax and neck joints). The offset is searched by the cross-entropy
+//! method (a Gaussian over offsets, refitted to its best `elites` of
+//! `population` draws for `iterations` rounds; Rubinstein and Kroese, *The
+//! Cross-Entropy Method*, 2004) to bring the ball's velocity and position
+//! one frame after the window (the release) to the clip's; the cost is
+//! `|v - v_ref|^2 + 25 |p - p_ref|^2` (m^2/s^2; 25 s^-2 weighs 0.2 m of
+//! position like 1 m/s of velocity). The zero offset is the clip's own
+//! targets; the best offset ever drawn (zero included) is reported, so a
+//! search never reports worse than the replay.
+//!
+//! Measured figures are in docs/training.md ("No nearby targets push as the
+//! clip does").
+
+use super::mjcf::Model;
+use super::world::{hand_bodies, SimOptions, World};
+use super::ObjectSpec;
+use crate::motion::clip::ClipFrames;
+use crate::motion::MotionLib;
+use anyhow::{Context, Result};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Settings of the push search (`[check-ball]` table of `skillaug
+/// check-ball`; off unless `push_search`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PushConfig {
+    /// Run the push search after the replay table.
+    pub push_search: bool,
+    /// A frame belongs to a push window when a hand body's origin (wrist or
+    /// finger joint) is within this distance of the ball's centre, m (the
+    /// clips hold it at 0.09-0.11 m while they push, inside the ball's
+    /// 0.12 m radius).
+    pub hand_radius: f64,
+    /// Shortest push window, frames.
+    pub min_frames: usize,
+    /// Offsets drawn per round.
+    pub population: usize,
+    /// Best draws the Gaussian is refitted to.
+    pub elites: usize,
+    /// Rounds.
+    pub iterations: usize,
+    /// Standard deviation of the first round's Gaussian, rad per axis.
+    pub init_sd: f64,
+}
+
+impl Default for PushConfig {
+    fn default() -> Self {
+        PushConfig {
+            push_search: false,
+            hand_radius: 0.15,
+            min_frames: 3,
+            population: 48,
+            elites: 8,
+            iterations: 12,
+            init_sd: 0.3,
+        }
+    }
+}
+
+impl crate::config::Validate for PushConfig {
+    /// Counts at least 1, elites at most the population, radius and
+    /// standard deviation positive and finite.
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.range("hand_radius", self.hand_radius, 1e-3, 10.0)?;
+        c.count("min_frames", self.min_frames as u64, 1, 10_000)?;
+        c.count("population", self.population as u64, 1, 100_000)?;
+        c.count("elites", self.elites as u64, 1, self.population as u64)?;
+        c.count("iterations", self.iterations as u64, 0, 10_000)?;
+        c.range("init_sd", self.init_sd, 1e-6, 10.0)?;
+        Ok(())
+    }
+}
+
+/// A push window of one clip: the ball descends with a hand on it over
+/// frames `start..release` and is measured at frame `release`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PushWindow {
+    /// First frame (a frame an episode may start from,
+    /// [`crate::augment::ats::start_frames`]).
+    pub start: usize,
+    /// The frame after the window's last, where the ball is compared.
+    pub release: usize,
+}
+
+/// The push windows of a clip: maximal runs of at least `min_frames` valid
+/// frames where object 0 descends (`v_z < 0`) and the nearest hand body
+/// origin (`hand` marks the hand bodies) is within `hand_radius` m of its
+/// centre, starting at an allowed start frame, with a valid frame after.
+pub fn push_windows(
+    f: &ClipFrames,
+    hand: &[bool],
+    hand_radius: f64,
+    min_frames: usize,
+) -> Vec<PushWindow> {
+    let allowed = crate::augment::ats::start_frames(f);
+    let pushing = |i: usize| -> bool {
+        let Some(s) = f.state(i) else { return false };
+        if s.obj_pos.len() < 3 || s.obj_linvel[2] >= 0.0 {
+            return false;
+        }
+        hand.iter().enumerate().filter(|(_, h)| **h).any(|(b, _)| {
+            let d2: f64 = (0..3)
+                .map(|k| (s.body_pos[b * 3 + k] as f64 - s.obj_pos[k] as f64).powi(2))
+                .sum();
+            d2.sqrt() < hand_radius
+        })
+    };
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < f.frames {
+        if !(allowed[i] && pushing(i)) {
+            i += 1;
+            continue;
+        }
+        let mut end = i + 1;
+        while end < f.frames && pushing(end) {
+            end += 1;
+        }
+        if end - i >= min_frames && end < f.frames && f.valid[end] {
+            out.push(PushWindow {
+                start: i,
+                release: end,
+            });
+        }
+        i = end;
+    }
+    out
+}
+
+/// Joints (index j drives body j + 1) of the arms (`upper = false`:
+/// shoulders, elbows, wrists) or of the upper body (`upper = true`: also
+/// the torso, spine, chest, thorax and neck), by body name.
+pub fn push_joints(model: &Model, upper: bool) -> Vec<usize> {
+    let arm = ["Shoulder", "Elbow", "Wrist"];
+    let trunk = ["Torso", "Spine", "Chest", "Thorax", "Neck"];
+    model
+        .bodies
+        .iter()
+        .enumerate()
+        .skip(1)
+        .filter(|(_, b)| {
+            arm.iter().any(|k| b.name.contains(k))
+                || (upper && trunk.iter().any(|k| b.name.contains(k)))
+        })
+        .map(|(i, _)| i - 1)
+        .collect()
+}
+
+/// The ball one frame after a window, replayed under PD from the clip's
+/// state at `w.start` with targets = next frame + `offset` on `joints`.
+#[derive(Clone)]
+struct Outcome {
+    cost: f64,
+    vel: [f64; 3],
+}
+
+fn replay(
+    world: &mut World,
+    f: &ClipFrames,
+    w: PushWindow,
+    joints: &[usize],
+    offset: &[f32],
+) -> Result<Outcome> {
+    let start = f.state(w.start).context("start frame not valid")?;
+    world.set_state(&start)?;
+    for i in w.start..w.release {
+        let next = f.state(i + 1).context("window frame not valid")?;
+        let mut t = next.joint_rot;
+        for (k, &j) in joints.iter().enumerate() {
+            for a in 0..3 {
+                t[j * 3 + a] += offset[k * 3 + a];
+            }
+        }
+        world.set_joint_targets(&t);
+        world.step();
+    }
+    let g = world.get_state();
+    let r = f.state(w.release).context("release frame not valid")?;
+    let dv: [f64; 3] = std::array::from_fn(|k| g.obj_linvel[k] as f64 - r.obj_linvel[k] as f64);
+    let dp: f64 = (0..3)
+        .map(|k| (g.obj_pos[k] as f64 - r.obj_pos[k] as f64).powi(2))
+        .sum();
+    Ok(Outcome {
+        cost: dv.iter().map(|x| x * x).sum::<f64>() + 25.0 * dp,
+        vel: std::array::from_fn(|k| g.obj_linvel[k] as f64),
+    })
+}
+
+/// The best offset found for one window and joint group.
+#[derive(Clone, Debug)]
+pub struct PushSearch {
+    /// Ball velocity at the release, m/s.
+    pub vel: [f64; 3],
+    /// Cost (module doc), m^2/s^2.
+    pub cost: f64,
+    /// Largest absolute offset, rad.
+    pub max_offset: f64,
+    /// Root mean square of the offset over its axes, rad.
+    pub rms_offset: f64,
+}
+
+/// One push window of one clip: the clip's ball, the PD replay of its own
+/// targets, and the best offsets on the arms and on the upper body.
+#[derive(Clone, Debug)]
+pub struct PushFit {
+    /// Clip index in the library.
+    pub clip: usize,
+    /// The window.
+    pub window: PushWindow,
+    /// The clip's ball velocity at the release, m/s.
+    pub vel_ref: [f64; 3],
+    /// The clip's own targets (zero offset).
+    pub replay: PushSearch,
+    /// Best offset on the arm joints.
+    pub arms: PushSearch,
+    /// Best offset on the upper-body joints.
+    pub upper: PushSearch,
+}
+
+fn summary(o: &Outcome, offset: &[f32]) -> PushSearch {
+    let n = offset.len().max(1) as f64;
+    PushSearch {
+        vel: o.vel,
+        cost: o.cost,
+        max_offset: offset.iter().fold(0f64, |m, x| m.max(x.abs() as f64)),
+        rms_offset: (offset.iter().map(|x| (*x as f64).powi(2)).sum::<f64>() / n).sqrt(),
+    }
+}
+
+/// Cross-entropy search of one window over `joints` (module doc), starting
+/// from the zero offset's outcome `replayed`. Each
+/// draw replays in its own world (rayon); draws are made in order from
+/// `rng` before they run, so the result does not depend on the thread
+/// count.
+fn search(
+    make: &(dyn Fn() -> Result<World> + Sync),
+    f: &ClipFrames,
+    w: PushWindow,
+    joints: &[usize],
+    cfg: &PushConfig,
+    replayed: &Outcome,
+    rng: &mut ChaCha8Rng,
+) -> Result<PushSearch> {
+    let d = joints.len() * 3;
+    let mut best = (replayed.clone(), vec![0f32; d]);
+    let mut mu = vec![0f64; d];
+    let mut sd = vec![cfg.init_sd; d];
+    for _ in 0..cfg.iterations {
+        let draws: Vec<Vec<f32>> = (0..cfg.population)
+            .map(|_| {
+                (0..d)
+                    .map(|k| (mu[k] + sd[k] * crate::random::normal_pair(rng).0) as f32)
+                    .collect()
+            })
+            .collect();
+        let mut scored = draws
+            .into_par_iter()
+            .map(|x| Ok((replay(&mut make()?, f, w, joints, &x)?, x)))
+            .collect::<Result<Vec<_>>>()?;
+        scored.sort_by(|a, b| a.0.cost.total_cmp(&b.0.cost));
+        let elites = &scored[..cfg.elites];
+        for k in 0..d {
+            let m = elites.iter().map(|e| e.1[k] as f64).sum::<f64>() / cfg.elites as f64;
+            let v = elites
+                .iter()
+                .map(|e| (e.1[k] as f64 - m).powi(2))
+                .sum::<f64>()
+                / cfg.elites as f64;
+            mu[k] = m;
+            // a floor keeps the search from collapsing onto one draw
+            sd[k] = v.sqrt().max(0.01);
+        }
+        if scored[0].0.cost < best.0.cost {
+            best = scored.swap_remove(0);
+        }
+    }
+    Ok(summary(&best.0, &best.1))
+}
+
+/// [`PushFit`] of every push window of clip `clip` (objects `objects`,
+/// object 0 a ball), searched with `cfg` and a generator seeded by `seed`,
+/// the clip and the window.
+///
+/// # Errors
+/// A world that cannot be built or a frame it refuses.
+pub fn fit_pushes_of_clip(
+    lib: &MotionLib,
+    clip: usize,
+    model: &Model,
+    objects: &[ObjectSpec],
+    opts: &SimOptions,
+    cfg: &PushConfig,
+    seed: u64,
+) -> Result<Vec<PushFit>> {
+    let f = &lib.frames[clip];
+    let hand = hand_bodies(model);
+    let make = || World::new(model, objects, opts);
+    let (arms, upper) = (push_joints(model, false), push_joints(model, true));
+    let mut out = Vec::new();
+    for w in push_windows(f, &hand, cfg.hand_radius, cfg.min_frames) {
+        let mut rng =
+            ChaCha8Rng::seed_from_u64(seed ^ ((clip as u64) << 32) ^ ((w.start as u64) << 16));
+        let r = f.state(w.release).context("release frame not valid")?;
+        let zero = vec![0f32; arms.len() * 3];
+        let replayed = replay(&mut make()?, f, w, &arms, &zero)?;
+        out.push(PushFit {
+            clip,
+            window: w,
+            vel_ref: std::array::from_fn(|k| r.obj_linvel[k] as f64),
+            replay: summary(&replayed, &zero),
+            arms: search(&make, f, w, &arms, cfg, &replayed, &mut rng)
+                .with_context(|| format!("frames {}..{}", w.start, w.release))?,
+            upper: search(&make, f, w, &upper, cfg, &replayed, &mut rng)
+                .with_context(|| format!("frames {}..{}", w.start, w.release))?,
+        });
+    }
+    Ok(out)
+}
+
+/// [`fit_pushes_of_clip`] for every clip of `lib` whose object 0 is the
+/// ball (objects from `root`).
+///
+/// # Errors
+/// As [`fit_pushes_of_clip`], naming the clip; an object that cannot be
+/// loaded.
+pub fn fit_pushes(
+    lib: &MotionLib,
+    model: &Model,
+    root: &Path,
+    cfg: &PushConfig,
+    seed: u64,
+) -> Result<Vec<PushFit>> {
+    let per_clip = super::checks::per_clip_with_objects(lib, root, |c, objs, opts| {
+        if objs.first().is_none_or(|o| o.name != "ball") {
+            return Ok(None);
+        }
+        fit_pushes_of_clip(lib, c, model, objs, opts, cfg, seed).map(Some)
+    })?;
+    Ok(per_clip.into_iter().flat_map(|(_, v)| v).collect())
+}
