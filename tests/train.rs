@@ -61,6 +61,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "--set",
             "train.feed_forward_lead=1",
             "--set",
+            "train.velocity_feed_forward=true",
+            "--set",
             "train.reference_obs=true",
             "--set",
             "train.seam_blend_steps=5",

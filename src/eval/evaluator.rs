@@ -377,6 +377,7 @@ pub fn plan_cells(
         residual_action: t.residual_action,
         reference_obs: t.reference_obs,
         feed_forward_lead: t.feed_forward_lead,
+        velocity_feed_forward: t.velocity_feed_forward,
         seam_blend_steps: t.seam_blend_steps,
         seam_masked_min: t.seam_masked_min,
         ..EnvConfig::training(t.method)

@@ -177,6 +177,13 @@ pub struct TrainConfig {
     /// actions and the warm start's targets). Not written when 0.
     #[serde(skip_serializing_if = "is_zero")]
     pub feed_forward_lead: f32,
+    /// With `residual_action`: the next reference frame's joint velocities
+    /// as the PD drives' target velocities
+    /// ([`crate::rl::humanoid::EnvConfig::velocity_feed_forward`]); off =
+    /// zero target velocities (the reference code). No effect without
+    /// residual actions. Not written when off.
+    #[serde(skip_serializing_if = "is_false")]
+    pub velocity_feed_forward: bool,
     /// Steps over which a continued reference blends from the frame its
     /// clip ended on into the frames after the seam
     /// ([`crate::rl::humanoid::EnvConfig::seam_blend_steps`]; 0 = a jump).
@@ -311,6 +318,7 @@ impl Default for TrainConfig {
             residual_action: false,
             reference_obs: false,
             feed_forward_lead: 0.0,
+            velocity_feed_forward: false,
             seam_blend_steps: 0,
             term_grace_steps: 0,
             seam_leave_search_s: 0.0,

@@ -198,6 +198,14 @@ pub struct EnvConfig {
     /// frames of one clip under one anchor: not across a seam, after masked
     /// steps or at an episode's first step.
     pub feed_forward_lead: f32,
+    /// With [`EnvConfig::residual_action`]: also give the PD drives the
+    /// next reference frame's joint velocities as target velocities
+    /// ([`crate::sim::world::World::apply_action_with_rates`],
+    /// [`crate::sim::world::joint_rates`]), so the drives follow the moving
+    /// reference without the kd/kp = 0.1 s lag of a zero target velocity;
+    /// off = zero target velocities, the reference code's PD control. At a
+    /// masked step the last frame's are kept, like its pose.
+    pub velocity_feed_forward: bool,
     /// Continued frames blended with the old clip's last frame after a seam
     /// ([`crate::augment::seam::blend`], weights 1/(K+1) .. K/(K+1) on the
     /// new frames); 0 = the reference jumps to the seam frame.
@@ -235,6 +243,7 @@ impl EnvConfig {
             residual_action: false,
             reference_obs: false,
             feed_forward_lead: 0.0,
+            velocity_feed_forward: false,
             seam_blend_steps: 0,
             term_grace_steps: 0,
         }
@@ -549,6 +558,9 @@ struct Episode {
     /// With residual actions: the coming step's feed-forward action, the
     /// next reference frame's joint exp-maps / π (`[J*3]`); empty without.
     ff: Vec<f32>,
+    /// With [`EnvConfig::velocity_feed_forward`]: the coming step's motor
+    /// target velocities, rad/s (`[J*3]`); empty without.
+    ff_rates: Vec<f32>,
     /// With the reference observation: the next reference frame (anchored).
     next_ref: Option<State>,
 }
@@ -885,10 +897,14 @@ impl Ctx<'_> {
             he_cache: EncoderCache::default(),
             traj,
             ff: Vec::new(),
+            ff_rates: Vec::new(),
             next_ref: None,
         };
         if self.cfg.residual_action {
             ep.ff = feed_forward(&g.joint_rot);
+            if self.cfg.velocity_feed_forward {
+                ep.ff_rates = crate::sim::world::joint_rates(&g.joint_rot, &g.joint_vel);
+            }
         }
         self.update_next(&mut ep);
         self.write_reference_block(&g, &ep, &mut row);
@@ -909,7 +925,11 @@ impl Ctx<'_> {
         ep.actions.extend_from_slice(a);
         if self.cfg.residual_action {
             let total: Vec<f32> = a.iter().zip(&ep.ff).map(|(a, f)| a + f).collect();
-            w.apply_action(&total);
+            if self.cfg.velocity_feed_forward {
+                w.apply_action_with_rates(&total, &ep.ff_rates);
+            } else {
+                w.apply_action(&total);
+            }
         } else {
             w.apply_action(a);
         }
@@ -1023,6 +1043,9 @@ impl Ctx<'_> {
                     None => r.joint_rot.clone(),
                 };
                 ep.ff = feed_forward(&e);
+                if self.cfg.velocity_feed_forward {
+                    ep.ff_rates = crate::sim::world::joint_rates(&r.joint_rot, &r.joint_vel);
+                }
             }
             if obs {
                 ep.next_ref = Some(r);

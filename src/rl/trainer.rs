@@ -247,6 +247,7 @@ pub fn environment<'a>(
         residual_action: cfg.residual_action,
         reference_obs: cfg.reference_obs,
         feed_forward_lead: cfg.feed_forward_lead,
+        velocity_feed_forward: cfg.velocity_feed_forward,
         seam_blend_steps: cfg.seam_blend_steps,
         term_grace_steps: cfg.term_grace_steps,
         nsi_follow: cfg.nsi && !cfg.stf,
@@ -923,6 +924,16 @@ impl<'a> Trainer<'a> {
                     " (no effect: no residual actions, no warm start)"
                 } else {
                     ""
+                }
+            ));
+        }
+        if cfg.velocity_feed_forward {
+            on.push(format!(
+                "velocity_feed_forward{}",
+                if cfg.residual_action {
+                    ""
+                } else {
+                    " (no effect: no residual actions)"
                 }
             ));
         }

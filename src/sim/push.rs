@@ -26,7 +26,7 @@
 //! clip does").
 
 use super::mjcf::Model;
-use super::world::{hand_bodies, SimOptions, World};
+use super::world::{hand_bodies, joint_rates, SimOptions, World};
 use super::ObjectSpec;
 use crate::motion::clip::ClipFrames;
 use crate::motion::MotionLib;
@@ -179,18 +179,24 @@ fn replay(
     w: PushWindow,
     joints: &[usize],
     offset: &[f32],
+    rates: bool,
 ) -> Result<Outcome> {
     let start = f.state(w.start).context("start frame not valid")?;
     world.set_state(&start)?;
     for i in w.start..w.release {
         let next = f.state(i + 1).context("window frame not valid")?;
-        let mut t = next.joint_rot;
+        let mut t = next.joint_rot.clone();
         for (k, &j) in joints.iter().enumerate() {
             for a in 0..3 {
                 t[j * 3 + a] += offset[k * 3 + a];
             }
         }
-        world.set_joint_targets(&t);
+        if rates {
+            let a = crate::rl::humanoid::feed_forward(&t);
+            world.apply_action_with_rates(&a, &joint_rates(&next.joint_rot, &next.joint_vel));
+        } else {
+            world.set_joint_targets(&t);
+        }
         world.step();
     }
     let g = world.get_state();
@@ -230,6 +236,10 @@ pub struct PushFit {
     pub vel_ref: [f64; 3],
     /// The clip's own targets (zero offset).
     pub replay: PushSearch,
+    /// The clip's own targets with its joint velocities as the drives'
+    /// target velocities ([`World::apply_action_with_rates`]: the
+    /// `train.velocity_feed_forward` control).
+    pub replay_rates: PushSearch,
     /// Best offset on the arm joints.
     pub arms: PushSearch,
     /// Best offset on the upper-body joints.
@@ -274,7 +284,7 @@ fn search(
             .collect();
         let mut scored = draws
             .into_par_iter()
-            .map(|x| Ok((replay(&mut make()?, f, w, joints, &x)?, x)))
+            .map(|x| Ok((replay(&mut make()?, f, w, joints, &x, false)?, x)))
             .collect::<Result<Vec<_>>>()?;
         scored.sort_by(|a, b| a.0.cost.total_cmp(&b.0.cost));
         let elites = &scored[..cfg.elites];
@@ -321,12 +331,14 @@ pub fn fit_pushes_of_clip(
             ChaCha8Rng::seed_from_u64(seed ^ ((clip as u64) << 32) ^ ((w.start as u64) << 16));
         let r = f.state(w.release).context("release frame not valid")?;
         let zero = vec![0f32; arms.len() * 3];
-        let replayed = replay(&mut make()?, f, w, &arms, &zero)?;
+        let replayed = replay(&mut make()?, f, w, &arms, &zero, false)?;
+        let with_rates = replay(&mut make()?, f, w, &arms, &zero, true)?;
         out.push(PushFit {
             clip,
             window: w,
             vel_ref: std::array::from_fn(|k| r.obj_linvel[k] as f64),
             replay: summary(&replayed, &zero),
+            replay_rates: summary(&with_rates, &zero),
             arms: search(&make, f, w, &arms, cfg, &replayed, &mut rng)
                 .with_context(|| format!("frames {}..{}", w.start, w.release))?,
             upper: search(&make, f, w, &upper, cfg, &replayed, &mut rng)

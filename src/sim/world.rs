@@ -25,7 +25,8 @@
 //!
 //! **PD drives** (target = pi * action, docs/simulation.md): implicit, solved by the engine
 //! (`MotorModel::ForceBased` with the MJCF stiffness/damping as kp/kd,
-//! torque = kp (target - q) - kd dq/dt per axis, no force limit). A target
+//! torque = kp (target - q) - kd dq/dt per axis, no force limit; with
+//! [`World::apply_action_with_rates`] kp (target - q) + kd (rate - dq/dt)). A target
 //! triple `e` (target = pi * action) is converted to the three angles a
 //! spherical joint's motors measure, `2 asin(exp(e).imag[i])`.
 //! The joint rows are solved one at a time (scalar, about a quarter of the
@@ -344,6 +345,9 @@ pub struct World {
     objects: Vec<RigidBodyHandle>,
     /// Motor targets currently set (exp-map triples).
     targets: Vec<f32>,
+    /// Motor target velocities currently set, rad/s per motor axis (zero
+    /// unless [`World::apply_action_with_rates`] set them).
+    target_rates: Vec<f32>,
 }
 
 fn v3(a: [f64; 3]) -> Vector {
@@ -372,6 +376,22 @@ fn unit_rotation_of(a: &[f32]) -> Rotation {
 /// The vector of the first three values of `a`.
 pub fn vector_of(a: &[f32]) -> Vector {
     Vector::new(a[0], a[1], a[2])
+}
+
+/// Motor target velocities (`[J*3]`, rad/s per motor axis) of joints whose
+/// exp-maps `joint_rot` change at `joint_vel` (rad/s, as [`State`] holds
+/// them): the relative angular velocity in the parent's frame,
+/// `J_l(e) de/dt` ([`rot::jl_mul`]), which is what a motor axis's damping
+/// term measures.
+pub fn joint_rates(joint_rot: &[f32], joint_vel: &[f32]) -> Vec<f32> {
+    joint_rot
+        .chunks_exact(3)
+        .zip(joint_vel.chunks_exact(3))
+        .flat_map(|(e, de)| {
+            let w = rot::jl_mul(vector_of(e), vector_of(de));
+            [w.x, w.y, w.z]
+        })
+        .collect()
 }
 
 /// Bodies that belong to a hand: the wrists and everything below them.
@@ -626,6 +646,7 @@ impl World {
             pw,
             opts: opts.clone(),
             targets: vec![0.0; 3 * (n - 1)],
+            target_rates: vec![0.0; 3 * (n - 1)],
             sk,
             bodies,
             joints,
@@ -674,28 +695,49 @@ impl World {
             "one target triple per joint"
         );
         for (j, t) in targets.chunks_exact(3).enumerate() {
-            self.set_joint_target(j, [t[0], t[1], t[2]]);
+            self.set_joint_target(j, [t[0], t[1], t[2]], [0.0; 3]);
         }
     }
 
     /// Set the targets from a policy action: target = pi * clamp(a, -1, 1)
     /// (docs/simulation.md).
     pub fn apply_action(&mut self, action: &[f32]) {
+        self.apply(action, None);
+    }
+
+    /// [`World::apply_action`] with motor target velocities `rates` (`[J*3]`,
+    /// rad/s per motor axis, [`joint_rates`]): each axis's torque becomes
+    /// kp (target - q) + kd (rate - dq/dt) instead of kp (target - q) -
+    /// kd dq/dt, so a target moving at `rate` is followed without the
+    /// kd/kp (0.1 s for every joint of the BallPlay model) lag of a PD
+    /// drive whose target velocity is zero.
+    pub fn apply_action_with_rates(&mut self, action: &[f32], rates: &[f32]) {
+        assert_eq!(rates.len(), self.targets.len(), "one rate per DoF");
+        self.apply(action, Some(rates));
+    }
+
+    fn apply(&mut self, action: &[f32], rates: Option<&[f32]>) {
         assert_eq!(action.len(), self.targets.len(), "one action per DoF");
         let t = |a: f32| std::f32::consts::PI * a.clamp(-1.0, 1.0);
         for (j, a) in action.chunks_exact(3).enumerate() {
-            self.set_joint_target(j, [t(a[0]), t(a[1]), t(a[2])]);
+            let r = rates.map_or([0.0; 3], |r| [r[3 * j], r[3 * j + 1], r[3 * j + 2]]);
+            self.set_joint_target(j, [t(a[0]), t(a[1]), t(a[2])], r);
         }
     }
 
-    /// Set joint `j`'s motor target; an unchanged target leaves the joint
-    /// alone (touching a joint makes rapier rebuild its solver caches).
-    fn set_joint_target(&mut self, j: usize, t: [f32; 3]) {
-        let old = &mut self.targets[3 * j..3 * j + 3];
-        if *old == t {
+    /// Set joint `j`'s motor target and target velocity; unchanged ones
+    /// leave the joint alone (touching a joint makes rapier rebuild its
+    /// solver caches).
+    fn set_joint_target(&mut self, j: usize, t: [f32; 3], rate: [f32; 3]) {
+        let (old, old_rate) = (
+            &mut self.targets[3 * j..3 * j + 3],
+            &mut self.target_rates[3 * j..3 * j + 3],
+        );
+        if *old == t && *old_rate == rate {
             return;
         }
         old.copy_from_slice(&t);
+        old_rate.copy_from_slice(&rate);
         let angles = rot::motor_angles(vector_of(&t));
         let g = self.sk.gains[j];
         let joint = self
@@ -709,7 +751,7 @@ impl World {
         {
             joint
                 .data
-                .set_motor_position(axis, angles[a], g[a][0], g[a][1]);
+                .set_motor(axis, angles[a], rate[a], g[a][0], g[a][1]);
         }
     }
 

@@ -84,8 +84,16 @@ fn print_push_search(
         "push windows: ball v_z at the release, m/s (speed error |v - v_ref|), under PD from the window's first frame"
     );
     println!(
-        "{:<34} {:>9}  {:>6}  {:>13}  {:>13}  {:>13}  {:>11}  {:>11}",
-        "clip", "frames", "clip", "own targets", "arms", "upper body", "arms rad", "upper rad"
+        "{:<34} {:>9}  {:>6}  {:>13}  {:>13}  {:>13}  {:>13}  {:>11}  {:>11}",
+        "clip",
+        "frames",
+        "clip",
+        "own targets",
+        "+ velocities",
+        "arms",
+        "upper body",
+        "arms rad",
+        "upper rad"
     );
     for p in &fits {
         let err = |v: &[f64; 3]| -> f64 {
@@ -96,12 +104,13 @@ fn print_push_search(
         };
         let cell = |v: &[f64; 3]| format!("{:6.2} ({:4.2})", v[2], err(v));
         println!(
-            "{:<34} {:>4}-{:<4}  {:>6.2}  {:>13}  {:>13}  {:>13}  {:>4.2} / {:>4.2}  {:>4.2} / {:>4.2}",
+            "{:<34} {:>4}-{:<4}  {:>6.2}  {:>13}  {:>13}  {:>13}  {:>13}  {:>4.2} / {:>4.2}  {:>4.2} / {:>4.2}",
             lib.clips[p.clip].name,
             p.window.start,
             p.window.release,
             p.vel_ref[2],
             cell(&p.replay.vel),
+            cell(&p.replay_rates.vel),
             cell(&p.arms.vel),
             cell(&p.upper.vel),
             p.arms.rms_offset,
@@ -111,7 +120,7 @@ fn print_push_search(
         );
     }
     println!(
-        "offsets: RMS / largest over the searched axes; arms: shoulders, elbows, wrists; upper body: also torso, spine, chest, thorax, neck"
+        "+ velocities: own targets with the clip's joint velocities as target velocities (train.velocity_feed_forward); offsets: RMS / largest over the searched axes; arms: shoulders, elbows, wrists; upper body: also torso, spine, chest, thorax, neck"
     );
     Ok(())
 }
