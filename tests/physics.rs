@@ -402,19 +402,25 @@ fn a_ball_replayed_under_the_clips_motion_falls_and_bounces_as_the_clips_does() 
     );
 }
 
-#[test]
-fn velocity_feed_forward_follows_a_moving_reference_more_closely() {
-    use skillaug::rl::humanoid::feed_forward;
-    use skillaug::sim::world::joint_rates;
-    let (_d, lib, model) = ballplay();
+/// The DF clip `run` of BallPlay (it pushes its ball down from frame 2):
+/// its index in `lib`, its objects and its simulation options.
+fn df_run(lib: &MotionLib) -> (usize, Vec<ObjectSpec>, SimOptions) {
     let c = lib
         .clips
         .iter()
         .position(|r| r.name == "013_018pickle_run_4")
         .unwrap();
-    let f = &lib.frames[c];
     let objs = skillaug::sim::objects::load_all(&lib.clips[c].objects, &data_root()).unwrap();
-    let opts = SimOptions::for_fps(lib.clips[c].fps as f64);
+    (c, objs, SimOptions::for_fps(lib.clips[c].fps as f64))
+}
+
+#[test]
+fn velocity_feed_forward_follows_a_moving_reference_more_closely() {
+    use skillaug::rl::humanoid::feed_forward;
+    use skillaug::sim::world::joint_rates;
+    let (_d, lib, model) = ballplay();
+    let (c, objs, opts) = df_run(&lib);
+    let f = &lib.frames[c];
     // a single joint turning about its own axis: the motor axis's rate is
     // the exp-map's rate (J_l(e) v = v when v is along e)
     let r = joint_rates(
@@ -471,11 +477,7 @@ fn a_push_search_finds_targets_that_push_harder_than_the_clips_own() {
     use skillaug::sim::push::{fit_pushes_of_clip, push_windows, PushConfig};
     use skillaug::sim::world::hand_bodies;
     let (_d, lib, model) = ballplay();
-    let c = lib
-        .clips
-        .iter()
-        .position(|r| r.name == "013_018pickle_run_4")
-        .unwrap();
+    let (c, objs, opts) = df_run(&lib);
     let cfg = PushConfig {
         push_search: true,
         population: 12,
@@ -488,8 +490,6 @@ fn a_push_search_finds_targets_that_push_harder_than_the_clips_own() {
     let windows = push_windows(&lib.frames[c], &hand_bodies(&model), 0.15, 3);
     assert_eq!(windows.len(), 2, "{windows:?}");
     assert_eq!(windows[0].start, 2, "{windows:?}");
-    let objs = skillaug::sim::objects::load_all(&lib.clips[c].objects, &data_root()).unwrap();
-    let opts = SimOptions::for_fps(lib.clips[c].fps as f64);
     let fits = fit_pushes_of_clip(&lib, c, &model, &objs, &opts, &cfg, 0).unwrap();
     assert_eq!(fits.len(), 2);
     let p = &fits[0];
