@@ -185,17 +185,17 @@ fn replay(
     world.set_state(&start)?;
     for i in w.start..w.release {
         let next = f.state(i + 1).context("window frame not valid")?;
-        let mut t = next.joint_rot.clone();
+        let rates = rates.then(|| joint_rates(&next.joint_rot, &next.joint_vel));
+        let mut t = next.joint_rot;
         for (k, &j) in joints.iter().enumerate() {
             for a in 0..3 {
                 t[j * 3 + a] += offset[k * 3 + a];
             }
         }
-        if rates {
-            let a = crate::rl::humanoid::feed_forward(&t);
-            world.apply_action_with_rates(&a, &joint_rates(&next.joint_rot, &next.joint_vel));
-        } else {
-            world.set_joint_targets(&t);
+        match rates {
+            // the training's own path: residual action 0 about the frame
+            Some(r) => world.apply_action_with_rates(&crate::rl::humanoid::feed_forward(&t), &r),
+            None => world.set_joint_targets(&t),
         }
         world.step();
     }
@@ -329,21 +329,22 @@ pub fn fit_pushes_of_clip(
     for w in push_windows(f, &hand, cfg.hand_radius, cfg.min_frames) {
         let mut rng =
             ChaCha8Rng::seed_from_u64(seed ^ ((clip as u64) << 32) ^ ((w.start as u64) << 16));
-        let r = f.state(w.release).context("release frame not valid")?;
-        let zero = vec![0f32; arms.len() * 3];
-        let replayed = replay(&mut make()?, f, w, &arms, &zero, false)?;
-        let with_rates = replay(&mut make()?, f, w, &arms, &zero, true)?;
-        out.push(PushFit {
-            clip,
-            window: w,
-            vel_ref: std::array::from_fn(|k| r.obj_linvel[k] as f64),
-            replay: summary(&replayed, &zero),
-            replay_rates: summary(&with_rates, &zero),
-            arms: search(&make, f, w, &arms, cfg, &replayed, &mut rng)
-                .with_context(|| format!("frames {}..{}", w.start, w.release))?,
-            upper: search(&make, f, w, &upper, cfg, &replayed, &mut rng)
-                .with_context(|| format!("frames {}..{}", w.start, w.release))?,
-        });
+        let mut fit = || -> Result<PushFit> {
+            let r = f.state(w.release).context("release frame not valid")?;
+            let zero = vec![0f32; arms.len() * 3];
+            let replayed = replay(&mut make()?, f, w, &arms, &zero, false)?;
+            let with_rates = replay(&mut make()?, f, w, &arms, &zero, true)?;
+            Ok(PushFit {
+                clip,
+                window: w,
+                vel_ref: std::array::from_fn(|k| r.obj_linvel[k] as f64),
+                replay: summary(&replayed, &zero),
+                replay_rates: summary(&with_rates, &zero),
+                arms: search(&make, f, w, &arms, cfg, &replayed, &mut rng)?,
+                upper: search(&make, f, w, &upper, cfg, &replayed, &mut rng)?,
+            })
+        };
+        out.push(fit().with_context(|| format!("frames {}..{}", w.start, w.release))?);
     }
     Ok(out)
 }
