@@ -231,6 +231,131 @@ fn a_critic_only_update_leaves_the_policy_alone() {
     assert!(changed("vf"), "the critic did not learn");
 }
 
+/// The flat weights of an agent, in name order.
+fn flat(a: &Agent) -> Vec<f32> {
+    a.weights()
+        .unwrap()
+        .into_iter()
+        .flat_map(|(_, v)| v)
+        .collect()
+}
+
+/// One update of two identical agents on the same rollout and shuffles,
+/// one on flat buffers (the CPU default), one on candle's autograd: both
+/// must take the same step, up to the order of float sums. Returns how far
+/// apart they end relative to how far the step moved the weights, or how
+/// far apart Adam's moments end relative to their size, whichever is more.
+fn flat_against_autograd(cfg: &PpoConfig, critic_only: bool) -> f64 {
+    let mut r = start_with(11, cfg);
+    let mut auto = Agent::new(OBS_DIM, ACT_DIM, cfg, 11, &Device::Cpu).unwrap();
+    auto.use_autograd(true);
+    let w0 = flat(&r.agent);
+    assert_eq!(w0, flat(&auto));
+    let ro = collect(&r.agent, &mut r.env, HORIZON, &mut r.tracker, &mut r.rng).unwrap();
+    let mut rng_auto = r.rng.clone();
+    let solo = &skillaug::rl::comm::Solo;
+    let a = r
+        .agent
+        .update_with(&ro, &mut r.rng, critic_only, solo)
+        .unwrap();
+    let b = auto
+        .update_with(&ro, &mut rng_auto, critic_only, solo)
+        .unwrap();
+    assert_eq!(a.steps, b.steps);
+    for (x, y, what) in [
+        (a.policy_loss, b.policy_loss, "policy loss"),
+        (a.value_loss, b.value_loss, "value loss"),
+        (a.bounds_loss, b.bounds_loss, "bounds loss"),
+        (a.total_loss, b.total_loss, "total loss"),
+        (a.approx_kl, b.approx_kl, "approx. KL"),
+        (a.clip_frac, b.clip_frac, "clip fraction"),
+    ] {
+        assert!(
+            (x - y).abs() <= 1e-4 * (1.0 + y.abs()),
+            "{what}: {x} against {y}"
+        );
+    }
+    let (wa, wb) = (flat(&r.agent), flat(&auto));
+    let moved: f64 = wb
+        .iter()
+        .zip(&w0)
+        .map(|(b, w)| ((b - w) as f64).powi(2))
+        .sum::<f64>();
+    let apart: f64 = wa
+        .iter()
+        .zip(&wb)
+        .map(|(a, b)| ((a - b) as f64).powi(2))
+        .sum::<f64>();
+    assert!(moved > 0.0, "the update did not move the weights");
+    if critic_only {
+        let pi = r.agent.weights().unwrap();
+        let pi0: Vec<f32> = pi
+            .iter()
+            .filter(|(k, _)| k.starts_with("pi"))
+            .flat_map(|(_, v)| v.clone())
+            .collect();
+        let w_pi0: Vec<f32> = Agent::new(OBS_DIM, ACT_DIM, cfg, 11, &Device::Cpu)
+            .unwrap()
+            .weights()
+            .unwrap()
+            .into_iter()
+            .filter(|(k, _)| k.starts_with("pi"))
+            .flat_map(|(_, v)| v)
+            .collect();
+        assert_eq!(
+            pi0, w_pi0,
+            "a critic-only step on flat buffers moved the policy"
+        );
+    }
+    // Adam's moments are the gradients' running means and squares: unlike
+    // the step itself they scale with the gradient
+    let dir = tempfile::tempdir().unwrap();
+    let moments = |a: &Agent, name: &str| {
+        let path = dir.path().join(name);
+        a.save(&path).unwrap();
+        let t = candle_core::safetensors::load(&path, &Device::Cpu).unwrap();
+        let mut keys: Vec<&String> = t.keys().filter(|k| k.starts_with("adam.")).collect();
+        keys.sort();
+        keys.iter()
+            .flat_map(|k| t[*k].flatten_all().unwrap().to_vec1::<f32>().unwrap())
+            .collect::<Vec<f32>>()
+    };
+    let (ma, mb) = (moments(&r.agent, "flat"), moments(&auto, "autograd"));
+    let norm: f64 = mb.iter().map(|x| (*x as f64).powi(2)).sum::<f64>();
+    let diff: f64 = ma
+        .iter()
+        .zip(&mb)
+        .map(|(a, b)| ((a - b) as f64).powi(2))
+        .sum::<f64>();
+    assert!(norm > 0.0);
+    (apart / moved).sqrt().max((diff / norm).sqrt())
+}
+
+#[test]
+fn the_update_on_flat_buffers_takes_the_autograds_step() {
+    // the default settings, then every branch of the losses: the clipped
+    // value loss, value normalisation, a bounds loss that every mean
+    // reaches (soft bound 0.01), a critic-only update
+    let clipped = PpoConfig {
+        clip_value: true,
+        normalize_value: true,
+        bounds_soft: 0.01,
+        ..small_cfg()
+    };
+    for (cfg, critic_only, what) in [
+        (small_cfg(), false, "defaults"),
+        (clipped.clone(), false, "clipped value loss"),
+        (clipped, true, "critic only"),
+    ] {
+        let rel = flat_against_autograd(&cfg, critic_only);
+        eprintln!("{what}: relative difference {rel:.2e}");
+        assert!(
+            rel < 1e-3,
+            "{what}: the two updates differ by {rel:.2e} of the step"
+        );
+    }
+}
+
 // ---- normaliser ----
 
 fn direct(data: &[f32], d: usize) -> (Vec<f64>, Vec<f64>) {

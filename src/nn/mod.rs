@@ -6,6 +6,7 @@
 //! initialisers draw from an unseeded generator and start far larger
 //! (measured: saturated outputs), and runs must repeat for a seed.
 
+pub mod dense;
 pub mod he;
 pub mod he_kernel;
 pub mod he_train;

@@ -55,11 +55,17 @@ impl IterationTimes {
 
 /// Time `repeat` PPO iterations (rollout and update, seed 0) of `cfg` on
 /// `s`'s clips after one untimed iteration that warms caches and the
-/// allocator.
+/// allocator; with `autograd` the update's steps run on candle's autograd
+/// ([`Agent::use_autograd`]).
 ///
 /// # Errors
 /// As [`environment`], [`Agent::new`], [`collect`] and [`Agent::update`].
-pub fn time_iterations(s: &Setup, cfg: &TrainConfig, repeat: usize) -> Result<IterationTimes> {
+pub fn time_iterations(
+    s: &Setup,
+    cfg: &TrainConfig,
+    repeat: usize,
+    autograd: bool,
+) -> Result<IterationTimes> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     let mut env = environment(s, cfg, None, cfg.envs(), &mut rng)?;
     let mut agent = Agent::new(
@@ -69,6 +75,7 @@ pub fn time_iterations(s: &Setup, cfg: &TrainConfig, repeat: usize) -> Result<It
         0,
         &crate::nn::DeviceName::Cpu.open()?,
     )?;
+    agent.use_autograd(autograd);
     let mut tracker = EpisodeTracker::new(cfg.envs());
     let (mut sim, mut act, mut upd, mut total) = (vec![], vec![], vec![], vec![]);
     for i in 0..=repeat.max(1) {

@@ -23,6 +23,7 @@ pub mod humanoid;
 pub mod norm;
 pub mod pointmass;
 pub mod ppo;
+mod ppo_dense;
 pub mod trainer;
 
 pub use norm::RunningNorm;

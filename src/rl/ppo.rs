@@ -57,6 +57,7 @@
 
 use super::comm::Comm;
 use super::norm::RunningNorm;
+use super::ppo_dense::{Batch, DenseUpdate, StepOut};
 use crate::nn::{Mlp, MlpInit, Params};
 use anyhow::{bail, ensure, Context, Result};
 use candle_core::{Device, Tensor, Var, D};
@@ -566,6 +567,9 @@ pub struct Agent {
     /// The learning rate in use (adapted with `kl_threshold`).
     lr_now: f64,
     dev: Device,
+    /// Minibatch steps on candle's autograd even on the CPU
+    /// ([`Agent::use_autograd`]).
+    autograd: bool,
 }
 
 impl Agent {
@@ -614,6 +618,7 @@ impl Agent {
             vnorm: RunningNorm::new(1),
             lr_now: cfg.lr,
             dev: dev.clone(),
+            autograd: false,
         })
     }
 
@@ -805,9 +810,6 @@ impl Agent {
             merge_ranks(&mut self.norm, &ro.obs, comm)?;
         }
         let dev = self.dev.clone();
-        let obs = self.obs_tensor(&ro.obs)?;
-        let act = Tensor::from_slice(&ro.actions, (b, self.act_dim), &dev)?;
-        let old_logp = Tensor::from_slice(&ro.logp, b, &dev)?;
         let (old_v, ret) = if self.cfg.normalize_value {
             merge_ranks(&mut self.vnorm, &ro.values, comm)?;
             merge_ranks(&mut self.vnorm, &ret, comm)?;
@@ -815,9 +817,6 @@ impl Agent {
         } else {
             (ro.values.clone(), ret)
         };
-        let old_v = Tensor::from_vec(old_v, b, &dev)?;
-        let adv = Tensor::from_vec(adv, b, &dev)?;
-        let ret = Tensor::from_vec(ret, b, &dev)?;
         ensure!(
             self.cfg.minibatch.is_multiple_of(comm.size()),
             "ppo: minibatch {} is not a multiple of the {} ranks",
@@ -825,58 +824,59 @@ impl Agent {
             comm.size()
         );
         let mb = (self.cfg.minibatch / comm.size()).min(b);
-        let d = self.act_dim as f64;
-        let logc = 0.5 * d * std::f64::consts::TAU.ln() + d * self.std.ln();
         let eps = self.cfg.clip;
+        let obs = self.obs_tensor(&ro.obs)?;
+        // On the CPU the step runs on flat buffers (`ppo_dense`), elsewhere
+        // (and with `use_autograd`) on candle's autograd.
+        let (mut dense, obs_flat) = if dev.is_cpu() && !self.autograd {
+            let d = DenseUpdate::new(&self.vars, &self.adam.m, &self.adam.v)?;
+            (Some(d), obs.flatten_all()?.to_vec1::<f32>()?)
+        } else {
+            (None, Vec::new())
+        };
+        let batch = Batch {
+            obs: &obs_flat,
+            act: &ro.actions,
+            old_logp: &ro.logp,
+            old_v: &old_v,
+            adv: &adv,
+            ret: &ret,
+        };
+        let tensors = if dense.is_none() {
+            Some([
+                obs,
+                Tensor::from_slice(&ro.actions, (b, self.act_dim), &dev)?,
+                Tensor::from_slice(&ro.logp, b, &dev)?,
+                Tensor::from_slice(&old_v, b, &dev)?,
+                Tensor::from_slice(&adv, b, &dev)?,
+                Tensor::from_slice(&ret, b, &dev)?,
+            ])
+        } else {
+            None
+        };
         let mut perm: Vec<u32> = (0..b as u32).collect();
         for _ in 0..self.cfg.epochs {
             perm.shuffle(rng);
             let (mut epoch_kl, mut epoch_n) = (0.0, 0usize);
             for chunk in perm.chunks(mb) {
-                let idx = Tensor::from_slice(chunk, chunk.len(), &dev)?;
-                let x = obs.index_select(&idx, 0)?;
-                let a = act.index_select(&idx, 0)?;
-                let olp = old_logp.index_select(&idx, 0)?;
-                let ov = old_v.index_select(&idx, 0)?;
-                let ad = adv.index_select(&idx, 0)?;
-                let rt = ret.index_select(&idx, 0)?;
-                let mu = self.pi.forward_const_input(&x)?;
-                let z = (a - &mu)?.affine(1.0 / self.std, 0.0)?;
-                let logp = z.sqr()?.sum(D::Minus1)?.affine(-0.5, -logc)?;
-                let log_ratio = (logp - &olp)?.clamp(-20f32, 20f32)?;
-                let ratio = log_ratio.exp()?;
-                let s1 = ratio.mul(&ad)?;
-                let s2 = ratio.clamp(1.0 - eps, 1.0 + eps)?.mul(&ad)?;
-                let pl = s1.minimum(&s2)?.mean_all()?.neg()?;
-                let v = self.vf.forward_const_input(&x)?.squeeze(D::Minus1)?;
-                let vl = if self.cfg.clip_value {
-                    let vc = (&ov + (&v - &ov)?.clamp(-eps, eps)?)?;
-                    (&v - &rt)?
-                        .sqr()?
-                        .maximum(&(vc - &rt)?.sqr()?)?
-                        .mean_all()?
-                } else {
-                    (&v - &rt)?.sqr()?.mean_all()?
+                let out = match (&mut dense, &tensors) {
+                    (Some(d), _) => {
+                        self.adam.step += 1;
+                        d.step(
+                            &self.cfg,
+                            self.std,
+                            &batch,
+                            chunk,
+                            critic_only,
+                            self.lr_now,
+                            self.adam.step,
+                            comm,
+                        )?
+                    }
+                    (None, Some(t)) => self.step_autograd(t, chunk, critic_only, comm)?,
+                    (None, None) => unreachable!("tensors are built without the dense path"),
                 };
-                let soft = self.cfg.bounds_soft;
-                let hi = mu.affine(1.0, -soft)?.relu()?.sqr()?;
-                let lo = mu.affine(-1.0, -soft)?.relu()?.sqr()?;
-                let bl = (hi + lo)?.sum(D::Minus1)?.mean_all()?;
-                let total = if critic_only {
-                    vl.affine(self.cfg.critic_coef, 0.0)?
-                } else {
-                    ((&pl + vl.affine(self.cfg.critic_coef, 0.0)?)?
-                        + bl.affine(self.cfg.bounds_coef, 0.0)?)?
-                };
-                let grads = rank_mean_grads(&self.vars, &total.backward()?, comm)?;
-                self.adam.apply(
-                    &self.vars,
-                    &grads,
-                    self.lr_now,
-                    self.cfg.adam_eps,
-                    critic_only,
-                )?;
-                let lr_v = log_ratio.to_vec1::<f32>()?;
+                let lr_v = &out.log_ratio;
                 let n = lr_v.len() as f64;
                 stats.clip_frac += lr_v
                     .iter()
@@ -887,10 +887,10 @@ impl Agent {
                 stats.approx_kl += kl;
                 epoch_kl += kl;
                 epoch_n += 1;
-                stats.policy_loss += pl.to_scalar::<f32>()? as f64;
-                stats.value_loss += vl.to_scalar::<f32>()? as f64;
-                stats.bounds_loss += bl.to_scalar::<f32>()? as f64;
-                stats.total_loss += total.to_scalar::<f32>()? as f64;
+                stats.policy_loss += out.pl;
+                stats.value_loss += out.vl;
+                stats.bounds_loss += out.bl;
+                stats.total_loss += out.total;
                 stats.steps += 1;
             }
             if let (Some(k), false) = (self.cfg.kl_threshold, critic_only) {
@@ -903,6 +903,9 @@ impl Agent {
                     self.lr_now = (self.lr_now * 1.5).min(self.cfg.lr_max);
                 }
             }
+        }
+        if let Some(d) = &dense {
+            d.write_back(&self.vars, &mut self.adam.m, &mut self.adam.v)?;
         }
         if self.cfg.normalize_obs && self.cfg.norm_after_update {
             merge_ranks(&mut self.norm, &ro.obs, comm)?;
@@ -934,6 +937,80 @@ impl Agent {
         }
         stats.lr = self.lr_now;
         Ok(stats)
+    }
+
+    /// One minibatch step of [`Agent::update_with`] on candle's autograd:
+    /// `t` holds the batch's normalised observations, actions, old
+    /// log-probabilities, old values, advantages and return targets; `chunk`
+    /// the minibatch's rows.
+    fn step_autograd(
+        &mut self,
+        t: &[Tensor; 6],
+        chunk: &[u32],
+        critic_only: bool,
+        comm: &dyn Comm,
+    ) -> Result<StepOut> {
+        let [obs, act, old_logp, old_v, adv, ret] = t;
+        let d = self.act_dim as f64;
+        let logc = 0.5 * d * std::f64::consts::TAU.ln() + d * self.std.ln();
+        let eps = self.cfg.clip;
+        let idx = Tensor::from_slice(chunk, chunk.len(), &self.dev)?;
+        let x = obs.index_select(&idx, 0)?;
+        let a = act.index_select(&idx, 0)?;
+        let olp = old_logp.index_select(&idx, 0)?;
+        let ov = old_v.index_select(&idx, 0)?;
+        let ad = adv.index_select(&idx, 0)?;
+        let rt = ret.index_select(&idx, 0)?;
+        let mu = self.pi.forward_const_input(&x)?;
+        let z = (a - &mu)?.affine(1.0 / self.std, 0.0)?;
+        let logp = z.sqr()?.sum(D::Minus1)?.affine(-0.5, -logc)?;
+        let log_ratio = (logp - &olp)?.clamp(-20f32, 20f32)?;
+        let ratio = log_ratio.exp()?;
+        let s1 = ratio.mul(&ad)?;
+        let s2 = ratio.clamp(1.0 - eps, 1.0 + eps)?.mul(&ad)?;
+        let pl = s1.minimum(&s2)?.mean_all()?.neg()?;
+        let v = self.vf.forward_const_input(&x)?.squeeze(D::Minus1)?;
+        let vl = if self.cfg.clip_value {
+            let vc = (&ov + (&v - &ov)?.clamp(-eps, eps)?)?;
+            (&v - &rt)?
+                .sqr()?
+                .maximum(&(vc - &rt)?.sqr()?)?
+                .mean_all()?
+        } else {
+            (&v - &rt)?.sqr()?.mean_all()?
+        };
+        let soft = self.cfg.bounds_soft;
+        let hi = mu.affine(1.0, -soft)?.relu()?.sqr()?;
+        let lo = mu.affine(-1.0, -soft)?.relu()?.sqr()?;
+        let bl = (hi + lo)?.sum(D::Minus1)?.mean_all()?;
+        let total = if critic_only {
+            vl.affine(self.cfg.critic_coef, 0.0)?
+        } else {
+            ((&pl + vl.affine(self.cfg.critic_coef, 0.0)?)?
+                + bl.affine(self.cfg.bounds_coef, 0.0)?)?
+        };
+        let grads = rank_mean_grads(&self.vars, &total.backward()?, comm)?;
+        self.adam.apply(
+            &self.vars,
+            &grads,
+            self.lr_now,
+            self.cfg.adam_eps,
+            critic_only,
+        )?;
+        Ok(StepOut {
+            pl: pl.to_scalar::<f32>()? as f64,
+            vl: vl.to_scalar::<f32>()? as f64,
+            bl: bl.to_scalar::<f32>()? as f64,
+            total: total.to_scalar::<f32>()? as f64,
+            log_ratio: log_ratio.to_vec1::<f32>()?,
+        })
+    }
+
+    /// Run [`Agent::update`]'s minibatch steps on candle's autograd even on
+    /// the CPU (for comparisons: `skillaug bench train`, tests); off, the
+    /// CPU runs them on flat buffers (`src/rl/ppo_dense.rs`).
+    pub fn use_autograd(&mut self, on: bool) {
+        self.autograd = on;
     }
 
     /// Behaviour cloning of the policy mean: merge `obs` (raw, `N *

@@ -170,9 +170,14 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
         "update us/samp",
         rayon::current_num_threads()
     );
-    for (name, preset, envs) in [
-        ("cpu (128 x 32, mb 2048)", Preset::Cpu, None),
-        ("paper nets (1024-512-512)", Preset::Paper, Some(512)),
+    // Each preset twice: the update on flat buffers (what training runs on
+    // the CPU) and on candle's autograd (`Agent::use_autograd`), so that the
+    // two compare within one run.
+    for (name, preset, envs, autograd) in [
+        ("cpu (128 x 32, mb 2048)", Preset::Cpu, None, false),
+        ("  same, autograd update", Preset::Cpu, None, true),
+        ("paper nets (1024-512-512)", Preset::Paper, Some(512), false),
+        ("  same, autograd update", Preset::Paper, Some(512), true),
     ] {
         let cfg = TrainConfig {
             skills: vec!["run".into()],
@@ -182,7 +187,7 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
             ..TrainConfig::default()
         };
         let s = Setup::load(&out, data_root.as_deref(), &cfg, &StfConfig::default())?;
-        let t = time_iterations(&s, &cfg, repeat)?;
+        let t = time_iterations(&s, &cfg, repeat, autograd)?;
         println!(
             "{name:<26} {:>10.0} {:>14.0} {:>8.0}% {:>12.0} {:>10.0} {:>13.0}",
             t.samples_per_s(),
