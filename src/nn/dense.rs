@@ -5,9 +5,9 @@
 //! observation, 256-256 hidden layers, 2,048-row minibatches) the update
 //! spent about as long outside the matrix products as in them. Every op
 //! allocates a fresh output (and every backward step a zero buffer to add
-//! the gradient into), so the kernel spent a tenth of the update's samples
-//! faulting new pages in; the bias gradient is a strided reduction; Adam is
-//! ten element-wise passes per weight. Here the same products are gemm's
+//! the gradient into), so that a tenth of a `bench train` profile's samples
+//! were the kernel faulting new pages in; the bias gradient is a strided
+//! reduction; Adam is about ten element-wise passes per weight. Here the same products are gemm's
 //! (the crate candle's CPU matmul calls, with the same kernels), into
 //! buffers that live across minibatches, with the bias, the ReLU and its
 //! mask fused into single passes. The arithmetic is the same as the

@@ -2,8 +2,9 @@
 //! [`super::ppo::Agent::update_with`] differentiated by hand, the networks'
 //! passes on [`crate::nn::dense::DenseMlp`], and Adam as one fused pass
 //! over flat weight and moment vectors. Why: docs/training.md, "A learner
-//! that keeps up". The autograd path stays for other devices, and the unit
-//! test below holds the two to the same gradients and the same step.
+//! that keeps up". The autograd path stays for other devices, and
+//! `the_update_on_flat_buffers_takes_the_autograds_step` (tests/rl_ppo.rs)
+//! holds the two to the same step and the same optimiser moments.
 //!
 //! The derivatives (per row i of a minibatch of B rows; μ the policy
 //! mean, σ its fixed standard deviation, A the advantage):
