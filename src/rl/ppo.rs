@@ -192,8 +192,12 @@ impl PpoConfig {
     }
 }
 
+/// Adam's β1 and β2 (PyTorch's defaults), for both update paths.
+pub(super) const ADAM_BETAS: (f64, f64) = (0.9, 0.999);
+
 /// Adam (PyTorch formula, no weight decay) with its state in the open so
 /// it can be checkpointed: candle-nn's `AdamW` keeps its moments private.
+/// The update on flat buffers (`ppo_dense.rs`) applies the same rule.
 struct Adam {
     m: Vec<Tensor>,
     v: Vec<Tensor>,
@@ -224,12 +228,11 @@ impl Adam {
         eps: f64,
         skip_missing: bool,
     ) -> Result<()> {
-        const B1: f64 = 0.9;
-        const B2: f64 = 0.999;
+        let (b1, b2) = ADAM_BETAS;
         self.step += 1;
         let t = self.step as i32;
-        let bc1 = 1.0 - B1.powi(t);
-        let bc2 = 1.0 - B2.powi(t);
+        let bc1 = 1.0 - b1.powi(t);
+        let bc2 = 1.0 - b2.powi(t);
         for (k, (name, var)) in vars.iter().enumerate() {
             let Some(g) = &grads[k] else {
                 if skip_missing {
@@ -237,8 +240,8 @@ impl Adam {
                 }
                 bail!("ppo: no gradient for `{name}`");
             };
-            self.m[k] = (self.m[k].affine(B1, 0.0)? + g.affine(1.0 - B1, 0.0)?)?;
-            self.v[k] = (self.v[k].affine(B2, 0.0)? + g.sqr()?.affine(1.0 - B2, 0.0)?)?;
+            self.m[k] = (self.m[k].affine(b1, 0.0)? + g.affine(1.0 - b1, 0.0)?)?;
+            self.v[k] = (self.v[k].affine(b2, 0.0)? + g.sqr()?.affine(1.0 - b2, 0.0)?)?;
             let denom = self.v[k].sqrt()?.affine(1.0 / bc2.sqrt(), eps)?;
             let upd = self.m[k].div(&denom)?.affine(lr / bc1, 0.0)?;
             var.set(&var.as_tensor().sub(&upd)?)?;
@@ -276,6 +279,15 @@ fn rank_mean_grads(
         }
     }
     Ok(gs)
+}
+
+/// How [`Agent::update_with`] takes its minibatch steps: on flat buffers
+/// (the CPU) or on candle's autograd over the batch's tensors (normalised
+/// observations, actions, old log-probabilities, old values, advantages,
+/// return targets).
+enum Stepper {
+    Dense(Box<DenseUpdate>),
+    Autograd([Tensor; 6]),
 }
 
 /// Merge the batch `data` (rows of `norm.dim()`) of every rank into `norm`,
@@ -676,19 +688,25 @@ impl Agent {
             .collect()
     }
 
-    fn obs_tensor(&self, obs: &[f32]) -> Result<Tensor> {
+    /// The observations `obs` (raw, rows of `obs_dim`) as the networks see
+    /// them: normalised when `normalize_obs` is on.
+    fn normalized_obs(&self, obs: &[f32]) -> Result<Vec<f32>> {
         ensure!(
             obs.len().is_multiple_of(self.obs_dim),
             "ppo: {} observation values are not rows of {}",
             obs.len(),
             self.obs_dim
         );
-        let rows = obs.len() / self.obs_dim;
-        let x = if self.cfg.normalize_obs {
+        Ok(if self.cfg.normalize_obs {
             self.norm.normalize(obs)
         } else {
             obs.to_vec()
-        };
+        })
+    }
+
+    fn obs_tensor(&self, obs: &[f32]) -> Result<Tensor> {
+        let x = self.normalized_obs(obs)?;
+        let rows = x.len() / self.obs_dim;
         Ok(Tensor::from_vec(x, (rows, self.obs_dim), &self.dev)?)
     }
 
@@ -825,42 +843,40 @@ impl Agent {
         );
         let mb = (self.cfg.minibatch / comm.size()).min(b);
         let eps = self.cfg.clip;
-        let obs = self.obs_tensor(&ro.obs)?;
         // On the CPU the step runs on flat buffers (`ppo_dense`), elsewhere
         // (and with `use_autograd`) on candle's autograd.
-        let (mut dense, obs_flat) = if dev.is_cpu() && !self.autograd {
-            let d = DenseUpdate::new(&self.vars, &self.adam.m, &self.adam.v)?;
-            (Some(d), obs.flatten_all()?.to_vec1::<f32>()?)
+        let obs = self.normalized_obs(&ro.obs)?;
+        let mut stepper = if dev.is_cpu() && !self.autograd {
+            Stepper::Dense(Box::new(DenseUpdate::new(
+                &self.vars,
+                &self.adam.m,
+                &self.adam.v,
+            )?))
         } else {
-            (None, Vec::new())
-        };
-        let batch = Batch {
-            obs: &obs_flat,
-            act: &ro.actions,
-            old_logp: &ro.logp,
-            old_v: &old_v,
-            adv: &adv,
-            ret: &ret,
-        };
-        let tensors = if dense.is_none() {
-            Some([
-                obs,
+            Stepper::Autograd([
+                Tensor::from_slice(&obs, (b, self.obs_dim), &dev)?,
                 Tensor::from_slice(&ro.actions, (b, self.act_dim), &dev)?,
                 Tensor::from_slice(&ro.logp, b, &dev)?,
                 Tensor::from_slice(&old_v, b, &dev)?,
                 Tensor::from_slice(&adv, b, &dev)?,
                 Tensor::from_slice(&ret, b, &dev)?,
             ])
-        } else {
-            None
+        };
+        let batch = Batch {
+            obs: &obs,
+            act: &ro.actions,
+            old_logp: &ro.logp,
+            old_v: &old_v,
+            adv: &adv,
+            ret: &ret,
         };
         let mut perm: Vec<u32> = (0..b as u32).collect();
         for _ in 0..self.cfg.epochs {
             perm.shuffle(rng);
             let (mut epoch_kl, mut epoch_n) = (0.0, 0usize);
             for chunk in perm.chunks(mb) {
-                let out = match (&mut dense, &tensors) {
-                    (Some(d), _) => {
+                let out = match &mut stepper {
+                    Stepper::Dense(d) => {
                         self.adam.step += 1;
                         d.step(
                             &self.cfg,
@@ -873,8 +889,7 @@ impl Agent {
                             comm,
                         )?
                     }
-                    (None, Some(t)) => self.step_autograd(t, chunk, critic_only, comm)?,
-                    (None, None) => unreachable!("tensors are built without the dense path"),
+                    Stepper::Autograd(t) => self.step_autograd(t, chunk, critic_only, comm)?,
                 };
                 let lr_v = &out.log_ratio;
                 let n = lr_v.len() as f64;
@@ -904,7 +919,7 @@ impl Agent {
                 }
             }
         }
-        if let Some(d) = &dense {
+        if let Stepper::Dense(d) = &stepper {
             d.write_back(&self.vars, &mut self.adam.m, &mut self.adam.v)?;
         }
         if self.cfg.normalize_obs && self.cfg.norm_after_update {

@@ -53,7 +53,6 @@ pub(super) struct DenseUpdate {
     x: Vec<f32>,
     g_mu: Vec<f32>,
     g_v: Vec<f32>,
-    mu: Vec<f32>,
 }
 
 /// The batch one update works on (normalised observations `[B, obs]`,
@@ -145,7 +144,6 @@ impl DenseUpdate {
             x: Vec::new(),
             g_mu: Vec::new(),
             g_v: Vec::new(),
-            mu: Vec::new(),
         })
     }
 
@@ -207,15 +205,13 @@ impl DenseUpdate {
         let ccoef = cfg.critic_coef as f32;
 
         // the policy's losses and their gradient with respect to μ
-        let mu = self.pi.forward(&self.params, &self.x, rows, par);
-        self.mu.clear();
-        self.mu.extend_from_slice(mu);
+        let mu_all = self.pi.forward(&self.params, &self.x, rows, par);
         self.g_mu.resize(rows * ad, 0.0);
         let mut log_ratio = Vec::with_capacity(rows);
         let (mut pl_sum, mut bl_sum) = (0f64, 0f64);
         for (r, &i) in idx.iter().enumerate() {
             let i = i as usize;
-            let mu = &self.mu[r * ad..(r + 1) * ad];
+            let mu = &mu_all[r * ad..(r + 1) * ad];
             let a = &batch.act[i * ad..(i + 1) * ad];
             let g = &mut self.g_mu[r * ad..(r + 1) * ad];
             let mut sq = 0f32;
@@ -283,14 +279,9 @@ impl DenseUpdate {
             .backward(&self.params, &self.x, &self.g_v, &mut self.grads, par);
 
         // every rank's mean gradient, then Adam on the variables that moved
+        // (a critic-only update never writes the policy's gradients, which
+        // stay at the zeros `new` made: the sum carries them unchanged)
         if comm.size() > 1 {
-            if critic_only {
-                for &(off, len, is_pi) in &self.spans {
-                    if is_pi {
-                        self.grads[off..off + len].fill(0.0);
-                    }
-                }
-            }
             comm.sum_f32(&mut self.grads)?;
             let inv = 1.0 / comm.size() as f32;
             for g in &mut self.grads {
@@ -318,13 +309,12 @@ impl DenseUpdate {
     /// Adam (β = 0.9, 0.999) in one pass per variable: the same update as
     /// `Adam::apply` in `ppo.rs`, `p -= lr/(1-β1^t) · m / (sqrt(v)/sqrt(1-β2^t) + eps)`.
     fn adam(&mut self, lr: f64, eps: f64, t: u64, critic_only: bool) {
-        const B1: f64 = 0.9;
-        const B2: f64 = 0.999;
+        let (b1, b2) = super::ppo::ADAM_BETAS;
         let t = t as i32;
-        let bc1 = 1.0 - B1.powi(t);
-        let bc2 = 1.0 - B2.powi(t);
-        let (b1, b2) = (B1 as f32, B2 as f32);
-        let (c1, c2) = ((1.0 - B1) as f32, (1.0 - B2) as f32);
+        let bc1 = 1.0 - b1.powi(t);
+        let bc2 = 1.0 - b2.powi(t);
+        let (c1, c2) = ((1.0 - b1) as f32, (1.0 - b2) as f32);
+        let (b1, b2) = (b1 as f32, b2 as f32);
         let inv_sqrt_bc2 = (1.0 / bc2.sqrt()) as f32;
         let eps = eps as f32;
         let step = (lr / bc1) as f32;
