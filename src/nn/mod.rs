@@ -11,7 +11,7 @@ pub mod he;
 pub mod he_kernel;
 pub mod he_train;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use candle_core::{Device, Tensor, Var};
 use candle_nn::{Conv1d, Conv1dConfig, Linear, Module};
 use rand::Rng;
@@ -79,7 +79,19 @@ impl DeviceName {
                         "--device {self}: this build has no CUDA support (rebuild with --features cuda)"
                     );
                 }
-                Ok(Device::new_cuda(ordinal.unwrap_or(0))?)
+                Device::new_cuda(ordinal.unwrap_or(0))
+                    // the driver's error, without the backtrace candle attaches
+                    // under RUST_BACKTRACE (the message is the user's answer)
+                    .map_err(|e| match e {
+                        candle_core::Error::WithBacktrace { inner, .. } => *inner,
+                        e => e,
+                    })
+                    .with_context(|| {
+                        format!(
+                            "--device {self}: no CUDA device could be opened \
+                             (is the NVIDIA driver installed and a GPU visible?)"
+                        )
+                    })
             }
         }
     }
