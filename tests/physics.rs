@@ -473,6 +473,59 @@ fn velocity_feed_forward_follows_a_moving_reference_more_closely() {
 }
 
 #[test]
+fn arms_only_feed_forward_moves_the_hands_with_the_clip_and_leaves_the_legs_damped() {
+    use skillaug::rl::humanoid::{feed_forward, FeedForwardJoints};
+    use skillaug::sim::world::joint_rates;
+    let (_d, lib, model) = ballplay();
+    let mask = FeedForwardJoints::Arms.mask(&model);
+    assert_eq!(FeedForwardJoints::All.mask(&model), vec![true; mask.len()]);
+    let on = |name: &str| -> bool {
+        let b = model
+            .bodies
+            .iter()
+            .position(|b| b.name == name)
+            .expect(name);
+        mask[b - 1]
+    };
+    for arm in ["R_Shoulder", "L_Elbow", "R_Wrist", "L_Index3", "R_Thumb1"] {
+        assert!(on(arm), "{arm}");
+    }
+    for other in [
+        "L_Hip", "R_Knee", "L_Ankle", "R_Toe", "Torso", "Spine", "Chest", "Neck", "L_Thorax",
+    ] {
+        assert!(!on(other), "{other}");
+    }
+    // the arm joints and every body below a wrist: 3 + 15 per side
+    assert_eq!(mask.iter().filter(|&&m| m).count(), 36);
+    // DF run from frame 2, open loop: with target velocities on the arms
+    // alone, a hand stays on the ball it pushes down as with every joint's
+    // (without any it lags and loses it: a_moving_reference test above)
+    let (c, objs, opts) = df_run(&lib);
+    let f = &lib.frames[c];
+    let mut w = World::new(&model, &objs, &opts).unwrap();
+    w.set_state(&f.state(2).unwrap()).unwrap();
+    let mut touching = 0;
+    let mut leg_rate = 0.0f32;
+    for i in 2..12 {
+        let next = f.state(i + 1).unwrap();
+        let mut r = joint_rates(&next.joint_rot, &next.joint_vel);
+        for (j, keep) in mask.iter().enumerate() {
+            if !keep {
+                leg_rate =
+                    leg_rate.max(r[3 * j..3 * j + 3].iter().fold(0.0, |m, v| m.max(v.abs())));
+                r[3 * j..3 * j + 3].fill(0.0);
+            }
+        }
+        w.apply_action_with_rates(&feed_forward(&next.joint_rot), &r);
+        touching += w.step_with_contacts().object_hands_any[0] as usize;
+    }
+    // the masked joints did move in the clip (so the mask changed the drive)
+    assert!(leg_rate > 0.5, "{leg_rate}");
+    // measured: 8 of 10 steps (every joint's rates: 10, none: 0)
+    assert!(touching >= 8, "{touching} of 10 steps");
+}
+
+#[test]
 fn a_push_search_finds_targets_that_push_harder_than_the_clips_own() {
     use skillaug::sim::push::{fit_pushes_of_clip, push_windows, PushConfig};
     use skillaug::sim::world::hand_bodies;

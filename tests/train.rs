@@ -63,6 +63,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "--set",
             "train.velocity_feed_forward=true",
             "--set",
+            "train.velocity_feed_forward_joints=arms",
+            "--set",
             "train.reference_obs=true",
             "--set",
             "train.seam_blend_steps=5",

@@ -378,6 +378,7 @@ pub fn plan_cells(
         reference_obs: t.reference_obs,
         feed_forward_lead: t.feed_forward_lead,
         velocity_feed_forward: t.velocity_feed_forward,
+        velocity_feed_forward_joints: t.velocity_feed_forward_joints,
         seam_blend_steps: t.seam_blend_steps,
         seam_masked_min: t.seam_masked_min,
         ..EnvConfig::training(t.method)

@@ -6,7 +6,7 @@
 use crate::augment::ats::Update;
 use crate::augment::settings::StfConfig;
 use crate::reward::{ContactDetect, ContactRule, RootRot, WeightOverrides};
-use crate::rl::humanoid::{MaskedReward, Method};
+use crate::rl::humanoid::{FeedForwardJoints, MaskedReward, Method};
 use crate::rl::PpoConfig;
 use anyhow::Result;
 use serde::{Deserialize, Serialize};
@@ -184,6 +184,13 @@ pub struct TrainConfig {
     /// residual actions. Not written when off.
     #[serde(skip_serializing_if = "is_false")]
     pub velocity_feed_forward: bool,
+    /// Which joints get those target velocities: `"all"`, or `"arms"`
+    /// (shoulders, elbows, wrists and the hands; legs and trunk keep zero
+    /// target velocities)
+    /// ([`crate::rl::humanoid::EnvConfig::velocity_feed_forward_joints`]).
+    /// Not written when `"all"`.
+    #[serde(skip_serializing_if = "is_all_joints")]
+    pub velocity_feed_forward_joints: FeedForwardJoints,
     /// Steps over which a continued reference blends from the frame its
     /// clip ended on into the frames after the seam
     /// ([`crate::rl::humanoid::EnvConfig::seam_blend_steps`]; 0 = a jump).
@@ -228,6 +235,10 @@ fn is_zero_usize(x: &usize) -> bool {
 
 fn is_zero(x: &f32) -> bool {
     *x == 0.0
+}
+
+fn is_all_joints(j: &FeedForwardJoints) -> bool {
+    *j == FeedForwardJoints::All
 }
 
 fn is_false(b: &bool) -> bool {
@@ -319,6 +330,7 @@ impl Default for TrainConfig {
             reference_obs: false,
             feed_forward_lead: 0.0,
             velocity_feed_forward: false,
+            velocity_feed_forward_joints: FeedForwardJoints::All,
             seam_blend_steps: 0,
             term_grace_steps: 0,
             seam_leave_search_s: 0.0,

@@ -206,6 +206,10 @@ pub struct EnvConfig {
     /// off = zero target velocities, the reference code's PD control. At a
     /// masked step the last frame's are kept, like its pose.
     pub velocity_feed_forward: bool,
+    /// Which joints get the feed-forward target velocities of
+    /// [`EnvConfig::velocity_feed_forward`]; the others keep a zero target
+    /// velocity (damped, as in the reference code).
+    pub velocity_feed_forward_joints: FeedForwardJoints,
     /// Continued frames blended with the old clip's last frame after a seam
     /// ([`crate::augment::seam::blend`], weights 1/(K+1) .. K/(K+1) on the
     /// new frames); 0 = the reference jumps to the seam frame.
@@ -244,6 +248,7 @@ impl EnvConfig {
             reference_obs: false,
             feed_forward_lead: 0.0,
             velocity_feed_forward: false,
+            velocity_feed_forward_joints: FeedForwardJoints::All,
             seam_blend_steps: 0,
             term_grace_steps: 0,
         }
@@ -795,6 +800,58 @@ struct Ctx<'a> {
     seams: Vec<Option<Seam>>,
     /// STF parameters (Eq. 20 at the seams).
     stf: StfParams,
+    /// Per joint (`[J]`): whether it gets feed-forward target velocities
+    /// (from [`EnvConfig::velocity_feed_forward_joints`]).
+    ff_rate_joints: Vec<bool>,
+}
+
+/// The joints that [`EnvConfig::velocity_feed_forward`] drives with the
+/// reference's joint velocities.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FeedForwardJoints {
+    /// Every joint.
+    #[default]
+    All,
+    /// The arms and hands only: shoulders, elbows, wrists and every body
+    /// below a wrist ([`crate::sim::push::push_joints`],
+    /// [`crate::sim::world::hand_bodies`]); legs and trunk keep a zero
+    /// target velocity, so they damp as in the reference code while the
+    /// hands follow the clip's pushes.
+    Arms,
+}
+
+impl FeedForwardJoints {
+    /// Per joint of `model` (joint j drives body j + 1): whether it gets
+    /// feed-forward target velocities.
+    pub fn mask(self, model: &Model) -> Vec<bool> {
+        let nj = model.bodies.len().saturating_sub(1);
+        match self {
+            FeedForwardJoints::All => vec![true; nj],
+            FeedForwardJoints::Arms => {
+                let hand = crate::sim::world::hand_bodies(model);
+                let mut m: Vec<bool> = (0..nj).map(|j| hand[j + 1]).collect();
+                for j in crate::sim::push::push_joints(model, false) {
+                    m[j] = true;
+                }
+                m
+            }
+        }
+    }
+}
+
+impl Ctx<'_> {
+    /// The feed-forward target velocities (`[J*3]`, rad/s) of a reference
+    /// frame, zero on the joints [`Ctx::ff_rate_joints`] leaves out.
+    fn ff_rates(&self, joint_rot: &[f32], joint_vel: &[f32]) -> Vec<f32> {
+        let mut r = crate::sim::world::joint_rates(joint_rot, joint_vel);
+        for (j, on) in self.ff_rate_joints.iter().enumerate() {
+            if !on {
+                r[3 * j..3 * j + 3].fill(0.0);
+            }
+        }
+        r
+    }
 }
 
 /// The action whose PD targets are the joint exp-maps `joint_rot`
@@ -903,7 +960,7 @@ impl Ctx<'_> {
         if self.cfg.residual_action {
             ep.ff = feed_forward(&g.joint_rot);
             if self.cfg.velocity_feed_forward {
-                ep.ff_rates = crate::sim::world::joint_rates(&g.joint_rot, &g.joint_vel);
+                ep.ff_rates = self.ff_rates(&g.joint_rot, &g.joint_vel);
             }
         }
         self.update_next(&mut ep);
@@ -1044,7 +1101,7 @@ impl Ctx<'_> {
                 };
                 ep.ff = feed_forward(&e);
                 if self.cfg.velocity_feed_forward {
-                    ep.ff_rates = crate::sim::world::joint_rates(&r.joint_rot, &r.joint_vel);
+                    ep.ff_rates = self.ff_rates(&r.joint_rot, &r.joint_vel);
                 }
             }
             if obs {
@@ -1295,6 +1352,7 @@ impl<'a> HumanoidEnv<'a> {
                 .iter()
                 .map(|c| (c.name.as_str(), c.skill.as_str(), c.class as u32)),
         )?;
+        let ff_rate_joints = parts.cfg.velocity_feed_forward_joints.mask(&parts.model);
         let ctx = Ctx {
             lib,
             sk,
@@ -1316,6 +1374,7 @@ impl<'a> HumanoidEnv<'a> {
             cfg: parts.cfg,
             seams: parts.seams,
             stf: parts.stf.clone(),
+            ff_rate_joints,
         };
         let mut env = HumanoidEnv {
             ats_weights: parts.ats.weights(&AtsParams::default()),

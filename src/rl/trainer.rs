@@ -17,7 +17,9 @@
 
 use super::comm::{fingerprint, Comm};
 use super::config::{PolicyMeta, TrainConfig};
-use super::humanoid::{EnvConfig, EnvParts, EnvStats, EpisodeRecord, HeRuntime, HumanoidEnv};
+use super::humanoid::{
+    EnvConfig, EnvParts, EnvStats, EpisodeRecord, FeedForwardJoints, HeRuntime, HumanoidEnv,
+};
 use super::{collect, Agent, EpisodeTracker, StepResult, VecEnv};
 use crate::augment::ats::{Ats, AtsParams};
 use crate::augment::settings::StfConfig;
@@ -248,6 +250,7 @@ pub fn environment<'a>(
         reference_obs: cfg.reference_obs,
         feed_forward_lead: cfg.feed_forward_lead,
         velocity_feed_forward: cfg.velocity_feed_forward,
+        velocity_feed_forward_joints: cfg.velocity_feed_forward_joints,
         seam_blend_steps: cfg.seam_blend_steps,
         term_grace_steps: cfg.term_grace_steps,
         nsi_follow: cfg.nsi && !cfg.stf,
@@ -929,7 +932,12 @@ impl<'a> Trainer<'a> {
         }
         if cfg.velocity_feed_forward {
             on.push(format!(
-                "velocity_feed_forward{}",
+                "velocity_feed_forward{}{}",
+                if cfg.velocity_feed_forward_joints == FeedForwardJoints::Arms {
+                    " (arms)"
+                } else {
+                    ""
+                },
                 if cfg.residual_action {
                     ""
                 } else {
