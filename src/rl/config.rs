@@ -185,8 +185,8 @@ pub struct TrainConfig {
     #[serde(skip_serializing_if = "is_false")]
     pub velocity_feed_forward: bool,
     /// Which joints get those target velocities: `"all"`, or `"arms"`
-    /// (shoulders, elbows, wrists and the hands; legs and trunk keep zero
-    /// target velocities)
+    /// (shoulders, elbows, wrists and the hands; the other joints keep zero
+    /// target velocities; no effect without `velocity_feed_forward`)
     /// ([`crate::rl::humanoid::EnvConfig::velocity_feed_forward_joints`]).
     /// Not written when `"all"`.
     #[serde(skip_serializing_if = "is_all_joints")]

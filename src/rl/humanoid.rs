@@ -813,11 +813,13 @@ pub enum FeedForwardJoints {
     /// Every joint.
     #[default]
     All,
-    /// The arms and hands only: shoulders, elbows, wrists and every body
-    /// below a wrist ([`crate::sim::push::push_joints`],
-    /// [`crate::sim::world::hand_bodies`]); legs and trunk keep a zero
-    /// target velocity, so they damp as in the reference code while the
-    /// hands follow the clip's pushes.
+    /// The arms and hands only, by body name: every body whose name holds
+    /// `Shoulder`, `Elbow` or `Wrist`, and every body below a wrist
+    /// ([`crate::sim::push::push_joints`], [`crate::sim::world::hand_bodies`];
+    /// BallPlay: 36 of 52 joints; on ParaHome's skeleton the T4 shoulder
+    /// bodies match too). Legs, trunk, neck, head and BallPlay's thorax
+    /// (clavicle) bodies keep a zero target velocity, so they damp as in
+    /// the reference code while the hands follow the clip's pushes.
     Arms,
 }
 
@@ -840,17 +842,24 @@ impl FeedForwardJoints {
     }
 }
 
-impl Ctx<'_> {
-    /// The feed-forward target velocities (`[J*3]`, rad/s) of a reference
-    /// frame, zero on the joints [`Ctx::ff_rate_joints`] leaves out.
-    fn ff_rates(&self, joint_rot: &[f32], joint_vel: &[f32]) -> Vec<f32> {
-        let mut r = crate::sim::world::joint_rates(joint_rot, joint_vel);
-        for (j, on) in self.ff_rate_joints.iter().enumerate() {
-            if !on {
-                r[3 * j..3 * j + 3].fill(0.0);
-            }
+/// The feed-forward target velocities (`[J*3]`, rad/s) of a reference
+/// frame with joint exp-maps `joint_rot` and their rates `joint_vel`
+/// (`[J*3]`, rad and rad/s): [`crate::sim::world::joint_rates`], zero on
+/// every joint j whose `mask[j]` ([`FeedForwardJoints::mask`]) is false.
+pub fn masked_joint_rates(mask: &[bool], joint_rot: &[f32], joint_vel: &[f32]) -> Vec<f32> {
+    let mut r = crate::sim::world::joint_rates(joint_rot, joint_vel);
+    for (j, on) in mask.iter().enumerate() {
+        if !on {
+            r[3 * j..3 * j + 3].fill(0.0);
         }
-        r
+    }
+    r
+}
+
+impl Ctx<'_> {
+    /// [`masked_joint_rates`] with the environment's joints.
+    fn ff_rates(&self, joint_rot: &[f32], joint_vel: &[f32]) -> Vec<f32> {
+        masked_joint_rates(&self.ff_rate_joints, joint_rot, joint_vel)
     }
 }
 

@@ -945,6 +945,13 @@ impl<'a> Trainer<'a> {
                 }
             ));
         }
+        if cfg.velocity_feed_forward_joints != FeedForwardJoints::All && !cfg.velocity_feed_forward
+        {
+            on.push(
+                "velocity_feed_forward_joints (no effect: velocity_feed_forward is off)"
+                    .to_string(),
+            );
+        }
         if cfg.term_grace_steps > 0 {
             let idle = !cfg.continuation || !cfg.early_termination || cfg.term_key_distance <= 0.0;
             on.push(format!(
