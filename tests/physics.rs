@@ -414,13 +414,50 @@ fn df_run(lib: &MotionLib) -> (usize, Vec<ObjectSpec>, SimOptions) {
     (c, objs, SimOptions::for_fps(lib.clips[c].fps as f64))
 }
 
+/// DF `run` replayed open loop under PD from frame 2 for 10 policy steps:
+/// targets the next frame's joint rotations and, when `rates` gives them
+/// for that frame's joint rotations and velocities, those target
+/// velocities (`None`: target velocity 0). Returns the mean body distance
+/// to the clip after the last step (m) and the steps in which a hand
+/// touches the ball.
+fn replay_df_push(
+    lib: &MotionLib,
+    model: &Model,
+    mut rates: impl FnMut(&[f32], &[f32]) -> Option<Vec<f32>>,
+) -> (f32, usize) {
+    use skillaug::rl::humanoid::feed_forward;
+    let (c, objs, opts) = df_run(lib);
+    let f = &lib.frames[c];
+    let mut w = World::new(model, &objs, &opts).unwrap();
+    w.set_state(&f.state(2).unwrap()).unwrap();
+    let (mut err, mut touching) = (0.0, 0);
+    for i in 2..12 {
+        let next = f.state(i + 1).unwrap();
+        let a = feed_forward(&next.joint_rot);
+        match rates(&next.joint_rot, &next.joint_vel) {
+            Some(r) => w.apply_action_with_rates(&a, &r),
+            None => w.apply_action(&a),
+        }
+        touching += w.step_with_contacts().object_hands_any[0] as usize;
+        let g = w.get_state();
+        let nb = g.body_pos.len() / 3;
+        err = (0..nb)
+            .map(|b| {
+                (0..3)
+                    .map(|k| (g.body_pos[b * 3 + k] - next.body_pos[b * 3 + k]).powi(2))
+                    .sum::<f32>()
+                    .sqrt()
+            })
+            .sum::<f32>()
+            / nb as f32;
+    }
+    (err, touching)
+}
+
 #[test]
 fn velocity_feed_forward_follows_a_moving_reference_more_closely() {
-    use skillaug::rl::humanoid::feed_forward;
     use skillaug::sim::world::joint_rates;
     let (_d, lib, model) = ballplay();
-    let (c, objs, opts) = df_run(&lib);
-    let f = &lib.frames[c];
     // a single joint turning about its own axis: the motor axis's rate is
     // the exp-map's rate (J_l(e) v = v when v is along e)
     let r = joint_rates(
@@ -432,35 +469,8 @@ fn velocity_feed_forward_follows_a_moving_reference_more_closely() {
     // and without the frames' joint velocities as target velocities: mean
     // body distance to the clip after 10 steps (measured 0.145 m without,
     // 0.125 m with) and the steps in which a hand touches the ball
-    let replay = |rates: bool| -> (f32, usize) {
-        let mut w = World::new(&model, &objs, &opts).unwrap();
-        w.set_state(&f.state(2).unwrap()).unwrap();
-        let (mut err, mut touching) = (0.0, 0);
-        for i in 2..12 {
-            let next = f.state(i + 1).unwrap();
-            let a = feed_forward(&next.joint_rot);
-            if rates {
-                w.apply_action_with_rates(&a, &joint_rates(&next.joint_rot, &next.joint_vel));
-            } else {
-                w.apply_action(&a);
-            }
-            touching += w.step_with_contacts().object_hands_any[0] as usize;
-            let g = w.get_state();
-            let nb = g.body_pos.len() / 3;
-            err = (0..nb)
-                .map(|b| {
-                    (0..3)
-                        .map(|k| (g.body_pos[b * 3 + k] - next.body_pos[b * 3 + k]).powi(2))
-                        .sum::<f32>()
-                        .sqrt()
-                })
-                .sum::<f32>()
-                / nb as f32;
-        }
-        (err, touching)
-    };
-    let (plain, plain_touch) = replay(false);
-    let (ff, ff_touch) = replay(true);
+    let (plain, plain_touch) = replay_df_push(&lib, &model, |_, _| None);
+    let (ff, ff_touch) = replay_df_push(&lib, &model, |e, de| Some(joint_rates(e, de)));
     assert!(plain > 0.08, "{plain}");
     assert!(ff < 0.92 * plain, "with rates {ff} m, without {plain} m");
     // the hand keeps up with the ball it pushes down (the clip's hand is on
@@ -474,7 +484,7 @@ fn velocity_feed_forward_follows_a_moving_reference_more_closely() {
 
 #[test]
 fn arms_only_feed_forward_moves_the_hands_with_the_clip_and_gives_the_rest_no_target_velocity() {
-    use skillaug::rl::humanoid::{feed_forward, masked_joint_rates, FeedForwardJoints};
+    use skillaug::rl::humanoid::{masked_joint_rates, FeedForwardJoints};
     use skillaug::sim::world::joint_rates;
     let (_d, lib, model) = ballplay();
     let mask = FeedForwardJoints::Arms.mask(&model);
@@ -503,16 +513,10 @@ fn arms_only_feed_forward_moves_the_hands_with_the_clip_and_gives_the_rest_no_ta
     // the drives: the clip's own on the arms, zero elsewhere; a hand stays
     // on the ball it pushes down (with every joint's rates: 10 of 10 steps,
     // with none: 0, velocity_feed_forward_follows_a_moving_reference_more_closely)
-    let (c, objs, opts) = df_run(&lib);
-    let f = &lib.frames[c];
-    let mut w = World::new(&model, &objs, &opts).unwrap();
-    w.set_state(&f.state(2).unwrap()).unwrap();
-    let mut touching = 0;
     let mut rest_rate = 0.0f32;
-    for i in 2..12 {
-        let next = f.state(i + 1).unwrap();
-        let full = joint_rates(&next.joint_rot, &next.joint_vel);
-        let r = masked_joint_rates(&mask, &next.joint_rot, &next.joint_vel);
+    let (_, touching) = replay_df_push(&lib, &model, |e, de| {
+        let full = joint_rates(e, de);
+        let r = masked_joint_rates(&mask, e, de);
         for (j, keep) in mask.iter().enumerate() {
             let (a, b) = (&r[3 * j..3 * j + 3], &full[3 * j..3 * j + 3]);
             if *keep {
@@ -522,9 +526,8 @@ fn arms_only_feed_forward_moves_the_hands_with_the_clip_and_gives_the_rest_no_ta
                 rest_rate = rest_rate.max(b.iter().fold(0.0, |m, v| m.max(v.abs())));
             }
         }
-        w.apply_action_with_rates(&feed_forward(&next.joint_rot), &r);
-        touching += w.step_with_contacts().object_hands_any[0] as usize;
-    }
+        Some(r)
+    });
     // the clip does turn the joints left at zero (so the mask changed the drive)
     assert!(rest_rate > 0.5, "{rest_rate}");
     // measured: 8 of 10 steps
