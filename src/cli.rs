@@ -167,6 +167,10 @@ pub struct BenchArgs {
     /// keys of the `[sim]` table, e.g. sim.pgs_iterations=2).
     #[arg(long, value_name = "sim.KEY=VALUE")]
     pub set: Vec<String>,
+    /// Device of the networks for `bench train`: cpu (default), or cuda /
+    /// cuda:N with the `cuda` feature.
+    #[arg(long, value_parser = device_name)]
+    pub device: Option<DeviceName>,
 }
 
 /// `skillaug build-stg`.

@@ -99,6 +99,12 @@ pub fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Export(a) => stage::export::run(&a),
-        Command::Bench(a) => stage::bench::run(a.name, a.repeat, a.data_root, &a.set),
+        Command::Bench(a) => stage::bench::run(
+            a.name,
+            a.repeat,
+            a.data_root,
+            &a.set,
+            a.device.unwrap_or_default(),
+        ),
     }
 }

@@ -181,12 +181,16 @@ fn a_rank_killed_with_sigkill_ends_the_job_and_the_resumed_run_matches() {
     let from = run.to_str().unwrap();
     ok(&["build-stg", "--out", from, "-q"]);
     let (a, b) = (dir.path().join("a"), dir.path().join("b"));
-    run_ok(mpirun(
-        2,
-        &train_args(from, a.to_str().unwrap(), "train.samples=960"),
-    ));
+    // rollouts collected on a second thread during each update: every
+    // rank's pending rollout and update generator go into the checkpoint,
+    // and only the main thread calls MPI
+    let overlap = ["--set", "train.overlap_rollout=true"];
+    let mut args_a = train_args(from, a.to_str().unwrap(), "train.samples=960");
+    args_a.extend_from_slice(&overlap);
+    run_ok(mpirun(2, &args_a));
 
-    let args = train_args(from, b.to_str().unwrap(), "train.samples=960");
+    let mut args = train_args(from, b.to_str().unwrap(), "train.samples=960");
+    args.extend_from_slice(&overlap);
     let mut child = mpirun(2, &args)
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -223,6 +227,10 @@ fn a_rank_killed_with_sigkill_ends_the_job_and_the_resumed_run_matches() {
     assert!(err.contains("signal 9"), "{err}");
     let killed_at = checkpoint_iteration(&b).unwrap();
     assert!(killed_at < 30, "killed after the last iteration");
+    // (checkpoint.old/ when the kill cut a checkpoint's swap short)
+    assert!(["checkpoint", "checkpoint.old"]
+        .iter()
+        .any(|d| b.join(d).join("pending.1.bin").is_file()));
     assert!(!b.join("policy.safetensors").exists());
 
     // a resume with another rank count is refused

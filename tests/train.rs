@@ -51,8 +51,10 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // residual actions with a lead, the reference observation and seam
     // blends; the grace after seams is set too, but without early
     // termination it only keeps its seam bookkeeping (its effect is tested
-    // in a_grace_after_seams_keeps_the_key_point_rule_off_...) and clips
-    // left early at their best seams
+    // in a_grace_after_seams_keeps_the_key_point_rule_off_...), clips
+    // left early at their best seams, and rollouts collected on a second
+    // thread during the update (the pending rollout and the update's
+    // generator travel in the checkpoint)
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -88,6 +90,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.term_object_error=0.75",
             "--set",
             "train.reward_weights={ opv = 0.5, op = 2.0 }",
+            "--set",
+            "train.overlap_rollout=true",
         ],
     );
 }

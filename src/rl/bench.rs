@@ -9,7 +9,8 @@
 //! observation, reward, resets), inference and the PPO update, beside the
 //! simulation-only bound measured in the same iterations (samples per
 //! second of the environments' steps alone) and the share of it reached
-//! ([`time_iterations`]).
+//! ([`time_iterations`]); each also with the next rollout collected during
+//! the update ([`Timing::Overlapped`]).
 
 use crate::rl::config::TrainConfig;
 use crate::rl::trainer::{environment, Setup, Timed};
@@ -53,10 +54,26 @@ impl IterationTimes {
     }
 }
 
+/// How [`time_iterations`] runs an iteration.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Timing {
+    /// Collect, then update; the update on flat buffers on the CPU
+    /// (candle's autograd on other devices).
+    Flat,
+    /// Collect, then update on candle's autograd ([`Agent::use_autograd`]).
+    Autograd,
+    /// As [`Timing::Flat`], but the next rollout is collected on a second
+    /// thread by a copy of the policy while the update runs
+    /// (`train.overlap_rollout`); the update has its own generator.
+    Overlapped,
+}
+
 /// Time `repeat` PPO iterations (rollout and update, seed 0) of `cfg` on
-/// `s`'s clips after one untimed iteration that warms caches and the
-/// allocator; with `autograd` the update's steps run on candle's autograd
-/// ([`Agent::use_autograd`]).
+/// `s`'s clips, networks on `dev`, after one untimed iteration that warms
+/// caches and the allocator. With [`Timing::Overlapped`] the simulation
+/// and inference times are those of the rollout collected during the
+/// timed iteration's update, and the whole iteration is the wall time of
+/// both.
 ///
 /// # Errors
 /// As [`environment`], [`Agent::new`], [`collect`] and [`Agent::update`].
@@ -64,33 +81,55 @@ pub fn time_iterations(
     s: &Setup,
     cfg: &TrainConfig,
     repeat: usize,
-    autograd: bool,
+    timing: Timing,
+    dev: &candle_core::Device,
 ) -> Result<IterationTimes> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     let mut env = environment(s, cfg, None, cfg.envs(), &mut rng)?;
-    let mut agent = Agent::new(
-        env.obs_dim(),
-        env.act_dim(),
-        &cfg.ppo_config(),
-        0,
-        &crate::nn::DeviceName::Cpu.open()?,
-    )?;
-    agent.use_autograd(autograd);
+    let mut agent = Agent::new(env.obs_dim(), env.act_dim(), &cfg.ppo_config(), 0, dev)?;
+    agent.use_autograd(timing == Timing::Autograd);
     let mut tracker = EpisodeTracker::new(cfg.envs());
     let (mut sim, mut act, mut upd, mut total) = (vec![], vec![], vec![], vec![]);
+    let gather = |agent: &Agent, env: &mut _, tracker: &mut _, rng: &mut _| -> Result<_> {
+        let t0 = Instant::now();
+        let mut timed = Timed { env, secs: 0.0 };
+        let ro = collect(agent, &mut timed, cfg.steps(), tracker, rng)?;
+        Ok((ro, timed.secs, t0.elapsed().as_secs_f64()))
+    };
+    let mut urng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    urng.set_stream(1 << 32);
+    let mut actor = agent.actor_copy()?;
+    let mut pending = None;
     for i in 0..=repeat.max(1) {
         let t0 = Instant::now();
-        let mut timed = Timed {
-            env: &mut env,
-            secs: 0.0,
+        let (sim_s, c, update_s) = if timing == Timing::Overlapped {
+            let ro = match pending.take() {
+                Some(ro) => ro,
+                None => gather(&agent, &mut env, &mut tracker, &mut rng)?.0,
+            };
+            agent.copy_into(&mut actor)?;
+            let (a, e, t, r, ag) = (&actor, &mut env, &mut tracker, &mut rng, &mut agent);
+            let (next, up) = std::thread::scope(|sc| {
+                let h = sc.spawn(move || gather(a, e, t, r));
+                let t1 = Instant::now();
+                let up = ag
+                    .update(&ro, &mut urng)
+                    .map(|_| t1.elapsed().as_secs_f64());
+                (h.join(), up)
+            });
+            let update_s = up?;
+            let (ro, sim_s, c) =
+                next.map_err(|_| anyhow::anyhow!("the rollout thread panicked"))??;
+            pending = Some(ro);
+            (sim_s, c, update_s)
+        } else {
+            let (ro, sim_s, c) = gather(&agent, &mut env, &mut tracker, &mut rng)?;
+            let t1 = Instant::now();
+            agent.update(&ro, &mut rng)?;
+            (sim_s, c, t1.elapsed().as_secs_f64())
         };
-        let ro = collect(&agent, &mut timed, cfg.steps(), &mut tracker, &mut rng)?;
-        let sim_s = timed.secs;
-        let c = t0.elapsed().as_secs_f64();
-        let t1 = Instant::now();
-        agent.update(&ro, &mut rng)?;
         if i > 0 {
-            upd.push(t1.elapsed().as_secs_f64());
+            upd.push(update_s);
             sim.push(sim_s);
             act.push(c - sim_s);
             total.push(t0.elapsed().as_secs_f64());

@@ -223,6 +223,17 @@ pub struct TrainConfig {
     /// paper's Table 8 (SM) or Table 9 (DM). Not written when empty.
     #[serde(default, skip_serializing_if = "WeightOverrides::is_empty")]
     pub reward_weights: WeightOverrides,
+    /// Collect the next rollout while the PPO update runs, on a second
+    /// thread, with a copy of the policy from before the update: the
+    /// simulation overlaps the learner, and every rollout after the first
+    /// is collected by the policy of one iteration earlier (a policy lag
+    /// of one update, which PPO's ratio to the stored log-probabilities
+    /// accounts for). Meant for `--device cuda`, where the update leaves
+    /// the CPU cores free; measured in docs/training.md ("Overlapping the
+    /// rollout with the update"). Off = collect, then update (the
+    /// reference code). Not written when off.
+    #[serde(skip_serializing_if = "is_false")]
+    pub overlap_rollout: bool,
 }
 
 fn is_zero_f64(x: &f64) -> bool {
@@ -336,6 +347,7 @@ impl Default for TrainConfig {
             seam_leave_search_s: 0.0,
             term_object_error: 0.0,
             reward_weights: WeightOverrides::default(),
+            overlap_rollout: false,
         }
     }
 }

@@ -383,7 +383,7 @@ pub struct Transition<'a> {
 }
 
 /// A rollout buffer `[T steps][N envs]`, stored step-major.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Rollout {
     num_envs: usize,
     obs_dim: usize,
@@ -466,6 +466,88 @@ impl Rollout {
         );
         self.last_values = Some(last_values.to_vec());
         Ok(())
+    }
+
+    /// A finished buffer as little-endian bytes, for a checkpoint: the
+    /// `f32` arrays obs, actions, logp, values, rewards, bootstrap values
+    /// and last values, then the flags terminated and truncated, one byte
+    /// each. [`Rollout::from_le_bytes`] reads them back exactly.
+    ///
+    /// # Errors
+    /// When the buffer is not finished.
+    pub fn to_le_bytes(&self) -> Result<Vec<u8>> {
+        let last = self.last_values.as_ref().context("rollout: not finished")?;
+        let mut b = Vec::new();
+        for a in [
+            &self.obs,
+            &self.actions,
+            &self.logp,
+            &self.values,
+            &self.rewards,
+            &self.bootstrap,
+            last,
+        ] {
+            for x in a {
+                b.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        b.extend(self.terminated.iter().map(|&t| t as u8));
+        b.extend(self.truncated.iter().map(|&t| t as u8));
+        Ok(b)
+    }
+
+    /// Read back the bytes of [`Rollout::to_le_bytes`] of a finished buffer
+    /// of `steps` steps of `num_envs` environments.
+    ///
+    /// # Errors
+    /// Bytes of another length, or a flag byte that is neither 0 nor 1.
+    pub fn from_le_bytes(
+        num_envs: usize,
+        obs_dim: usize,
+        act_dim: usize,
+        steps: usize,
+        bytes: &[u8],
+    ) -> Result<Rollout> {
+        let tn = steps * num_envs;
+        let floats = [tn * obs_dim, tn * act_dim, tn, tn, tn, tn, num_envs];
+        let want = 4 * floats.iter().sum::<usize>() + 2 * tn;
+        ensure!(
+            bytes.len() == want,
+            "rollout: {} bytes, expected {want} for {steps} steps of {num_envs} environments",
+            bytes.len()
+        );
+        let mut at = 0;
+        let mut arrays = floats.iter().map(|&len| {
+            let v: Vec<f32> = bytes[at..at + 4 * len]
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            at += 4 * len;
+            v
+        });
+        let mut next = || arrays.next().expect("seven arrays");
+        let (obs, actions, logp, values, rewards, bootstrap, last) =
+            (next(), next(), next(), next(), next(), next(), next());
+        let flags = &bytes[bytes.len() - 2 * tn..];
+        ensure!(
+            flags.iter().all(|&f| f <= 1),
+            "rollout: a flag byte is neither 0 nor 1"
+        );
+        let flag = |s: &[u8]| s.iter().map(|&f| f == 1).collect::<Vec<bool>>();
+        Ok(Rollout {
+            num_envs,
+            obs_dim,
+            act_dim,
+            obs,
+            actions,
+            logp,
+            values,
+            rewards,
+            terminated: flag(&flags[..tn]),
+            truncated: flag(&flags[tn..]),
+            bootstrap,
+            last_values: Some(last),
+        })
     }
 
     /// GAE advantages and returns (`T * N`, step-major).
@@ -686,6 +768,41 @@ impl Agent {
             .iter()
             .map(|(k, v)| Ok((k.clone(), v.as_tensor().flatten_all()?.to_vec1::<f32>()?)))
             .collect()
+    }
+
+    /// A copy of this agent that acts as it does ([`Agent::act`],
+    /// [`Agent::values`] give the same outputs, bit for bit) and shares no
+    /// storage with it, so it can act on another thread while this agent
+    /// updates; its optimiser moments are fresh (an actor never updates).
+    ///
+    /// # Errors
+    /// A failure to allocate or copy a weight on the agent's device.
+    pub fn actor_copy(&self) -> Result<Agent> {
+        let mut actor = Agent::new(self.obs_dim, self.act_dim, &self.cfg, 0, &self.dev)?;
+        self.copy_into(&mut actor)?;
+        Ok(actor)
+    }
+
+    /// Overwrite `actor`'s weights and normalisers with this agent's (an
+    /// actor made by [`Agent::actor_copy`]), copying the values into its own
+    /// storage.
+    ///
+    /// # Errors
+    /// An `actor` of other sizes or settings, or a failed copy.
+    pub fn copy_into(&self, actor: &mut Agent) -> Result<()> {
+        ensure!(
+            actor.cfg == self.cfg && actor.vars.len() == self.vars.len(),
+            "ppo: the actor was made for other settings"
+        );
+        for ((k, from), (k2, to)) in self.vars.iter().zip(&actor.vars) {
+            ensure!(k == k2, "ppo: the actor's weight {k2} is not {k}");
+            to.set(from.as_tensor())?;
+        }
+        actor.std = self.std;
+        actor.norm = self.norm.clone();
+        actor.vnorm = self.vnorm.clone();
+        actor.lr_now = self.lr_now;
+        Ok(())
     }
 
     /// The observations `obs` (raw, rows of `obs_dim`) as the networks see

@@ -454,6 +454,88 @@ struct RankState {
     rng_word_pos: String,
     tracker: EpisodeTracker,
     episodes: Vec<EpisodeMeta>,
+    /// The update's generator with `train.overlap_rollout` (absent
+    /// without).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    update_rng: Option<RngState>,
+    /// The rollout collected for the next update with
+    /// `train.overlap_rollout` (its buffer goes to `pending.bin`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pending: Option<PendingMeta>,
+}
+
+/// A ChaCha8 generator's position.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct RngState {
+    seed: Vec<u8>,
+    stream: u64,
+    word_pos: String,
+}
+
+impl RngState {
+    fn of(r: &ChaCha8Rng) -> RngState {
+        RngState {
+            seed: r.get_seed().to_vec(),
+            stream: r.get_stream(),
+            word_pos: r.get_word_pos().to_string(),
+        }
+    }
+
+    fn rng(&self) -> Result<ChaCha8Rng> {
+        let mut seed32 = [0u8; 32];
+        ensure!(self.seed.len() == 32, "checkpoint: RNG seed");
+        seed32.copy_from_slice(&self.seed);
+        let mut r = ChaCha8Rng::from_seed(seed32);
+        r.set_stream(self.stream);
+        r.set_word_pos(
+            self.word_pos
+                .parse::<u128>()
+                .context("checkpoint: RNG position")?,
+        );
+        Ok(r)
+    }
+}
+
+/// A collected rollout waiting for its update, without its buffer.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct PendingMeta {
+    steps: usize,
+    stats: EnvStats,
+    returns: [f64; 2],
+    sim_s: f64,
+    collect_s: f64,
+}
+
+/// A collected rollout with what the iteration reports of it: the
+/// environment's statistics and the finished episodes' return sum and
+/// count, both combined over the ranks, and this rank's timings, s.
+struct Collected {
+    ro: super::Rollout,
+    stats: EnvStats,
+    returns: [f64; 2],
+    sim_s: f64,
+    collect_s: f64,
+}
+
+/// The ChaCha8 stream of rank `rank`'s update generator with
+/// `train.overlap_rollout` (the rollout generators use streams 0..R).
+fn update_stream(rank: usize) -> u64 {
+    (1u64 << 32) + rank as u64
+}
+
+/// Collect `steps` steps of `env` with `actor`: the rollout, the seconds
+/// spent in the environment's steps, and the whole collection's seconds.
+fn gather(
+    actor: &Agent,
+    env: &mut HumanoidEnv<'_>,
+    steps: usize,
+    tracker: &mut EpisodeTracker,
+    rng: &mut ChaCha8Rng,
+) -> Result<(super::Rollout, f64, f64)> {
+    let t0 = Instant::now();
+    let mut timed = Timed { env, secs: 0.0 };
+    let ro = collect(actor, &mut timed, steps, tracker, rng)?;
+    Ok((ro, timed.secs, t0.elapsed().as_secs_f64()))
 }
 
 /// The trainer's state in a checkpoint beside the agent. Rank 0's part is
@@ -498,6 +580,15 @@ fn episodes_file(r: usize) -> String {
         "episodes.bin".into()
     } else {
         format!("episodes.{r}.bin")
+    }
+}
+
+/// The pending rollout's file of rank `r` in a checkpoint folder.
+fn pending_file(r: usize) -> String {
+    if r == 0 {
+        "pending.bin".into()
+    } else {
+        format!("pending.{r}.bin")
     }
 }
 
@@ -571,6 +662,18 @@ pub fn refuse_to_replace(out: &Path) -> Result<()> {
     Ok(())
 }
 
+/// What [`load_checkpoint`] reads for one rank.
+struct Loaded {
+    agent: Agent,
+    st: TrainerState,
+    /// This rank's part of the state.
+    part: RankState,
+    /// This rank's running episodes.
+    recs: Vec<EpisodeRecord>,
+    /// This rank's pending rollout's bytes (`train.overlap_rollout`).
+    pending: Option<Vec<u8>>,
+}
+
 /// Read the checkpoint of `out` (`checkpoint/`, or `checkpoint.old/` when
 /// a swap was interrupted): the agent, the state and rank `rank`'s part.
 fn load_checkpoint(
@@ -578,7 +681,7 @@ fn load_checkpoint(
     dev: &candle_core::Device,
     rank: usize,
     ranks: usize,
-) -> Result<(Agent, TrainerState, RankState, Vec<EpisodeRecord>)> {
+) -> Result<Loaded> {
     let mut dir = ckpt_dir(out);
     if !dir.join("state.json").is_file() {
         dir = out.join("checkpoint.old");
@@ -611,21 +714,28 @@ fn load_checkpoint(
         st.ranks[rank - 1].clone()
     };
     let recs = records_of(&dir, &episodes_file(rank), &part.episodes)?;
-    Ok((agent, st, part, recs))
+    let pending = if part.pending.is_some() {
+        let path = dir.join(pending_file(rank));
+        Some(std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?)
+    } else {
+        None
+    };
+    Ok(Loaded {
+        agent,
+        st,
+        part,
+        recs,
+        pending,
+    })
 }
 
 fn rng_of(part: &RankState) -> Result<ChaCha8Rng> {
-    let mut seed32 = [0u8; 32];
-    ensure!(part.rng_seed.len() == 32, "checkpoint: RNG seed");
-    seed32.copy_from_slice(&part.rng_seed);
-    let mut r = ChaCha8Rng::from_seed(seed32);
-    r.set_stream(part.rng_stream);
-    r.set_word_pos(
-        part.rng_word_pos
-            .parse::<u128>()
-            .context("checkpoint: RNG position")?,
-    );
-    Ok(r)
+    RngState {
+        seed: part.rng_seed.clone(),
+        stream: part.rng_stream,
+        word_pos: part.rng_word_pos.clone(),
+    }
+    .rng()
 }
 
 /// What the behaviour cloning before PPO did ([`Agent::fit_mean`]).
@@ -664,6 +774,10 @@ struct Progress {
     metrics: Vec<MetricRow>,
     iteration: u64,
     samples: u64,
+    /// With `train.overlap_rollout`: the update's generator and the
+    /// rollout collected for the next update (none before the first).
+    update_rng: Option<ChaCha8Rng>,
+    pending: Option<Collected>,
 }
 
 /// The PPO loop of `skillaug train` over one rank's share of the
@@ -687,6 +801,12 @@ pub struct Trainer<'a> {
     ats_base: Option<Ats>,
     /// The behaviour cloning before PPO of a fresh start.
     pub warm_start: Option<WarmStart>,
+    /// With `train.overlap_rollout`: the update's own generator (the
+    /// rollout keeps `rng`), the rollout the next update learns from, and
+    /// the copy of the policy that collects while the agent updates.
+    update_rng: Option<ChaCha8Rng>,
+    pending: Option<Collected>,
+    actor: Option<Agent>,
 }
 
 impl<'a> Trainer<'a> {
@@ -747,11 +867,18 @@ impl<'a> Trainer<'a> {
                 secs: t.elapsed().as_secs_f64(),
             });
         }
+        let update_rng = cfg.overlap_rollout.then(|| {
+            let mut r = ChaCha8Rng::seed_from_u64(seed);
+            r.set_stream(update_stream(comm.rank()));
+            r
+        });
         let progress = Progress {
             tracker: EpisodeTracker::new(n),
             metrics: Vec::new(),
             iteration: 0,
             samples: 0,
+            update_rng,
+            pending: None,
         };
         let mut t = Self::assemble(inp, env, agent, rng, progress)?;
         t.warm_start = warm_start;
@@ -774,7 +901,13 @@ impl<'a> Trainer<'a> {
             ..
         } = inp;
         let n = Self::local_envs(cfg, comm)?;
-        let (agent, st, part, recs) = load_checkpoint(out, inp.dev, comm.rank(), comm.size())?;
+        let Loaded {
+            agent,
+            st,
+            part,
+            recs,
+            pending: pending_bytes,
+        } = load_checkpoint(out, inp.dev, comm.rank(), comm.size())?;
         if st.settings_hash != settings_hash(cfg, stf_cfg, seed)? {
             let now = resume_settings(cfg, stf_cfg, seed)?;
             let changed: String = st
@@ -803,11 +936,30 @@ impl<'a> Trainer<'a> {
             agent.obs_dim() == env.obs_dim() && agent.act_dim() == env.act_dim(),
             "--resume: the checkpoint's agent does not fit this environment"
         );
+        ensure!(
+            part.update_rng.is_some() == cfg.overlap_rollout,
+            "--resume: the checkpoint in {} does not fit train.overlap_rollout = {}",
+            out.display(),
+            cfg.overlap_rollout
+        );
+        let pending = match (&part.pending, pending_bytes) {
+            (Some(m), Some(b)) => Some(Collected {
+                ro: super::Rollout::from_le_bytes(n, env.obs_dim(), env.act_dim(), m.steps, &b)
+                    .with_context(|| format!("--resume: {}", pending_file(comm.rank())))?,
+                stats: m.stats.clone(),
+                returns: m.returns,
+                sim_s: m.sim_s,
+                collect_s: m.collect_s,
+            }),
+            _ => None,
+        };
         let progress = Progress {
             tracker: part.tracker.clone(),
             metrics: st.metrics,
             iteration: st.iteration,
             samples: st.samples,
+            update_rng: part.update_rng.as_ref().map(RngState::rng).transpose()?,
+            pending,
         };
         Self::assemble(inp, env, agent, rng_of(&part)?, progress)
     }
@@ -841,6 +993,9 @@ impl<'a> Trainer<'a> {
             seed: inp.seed,
             ats_base,
             warm_start: None,
+            update_rng: progress.update_rng,
+            pending: progress.pending,
+            actor: None,
         };
         t.check_weights()?;
         Ok(t)
@@ -975,6 +1130,9 @@ impl<'a> Trainer<'a> {
                 }
             ));
         }
+        if cfg.overlap_rollout {
+            on.push("overlap_rollout (rollouts by the policy of one update earlier)".to_string());
+        }
         if on.is_empty() {
             String::new()
         } else {
@@ -1024,49 +1182,31 @@ impl<'a> Trainer<'a> {
     pub fn iterate(&mut self) -> Result<&MetricRow> {
         let n = self.env.num_envs();
         let steps = self.cfg.steps();
+        let critic_only = self.iteration < self.cfg.critic_warmup_iters;
         let t0 = Instant::now();
-        let mut timed = Timed {
-            env: &mut self.env,
-            secs: 0.0,
-        };
-        let ro = collect(
-            &self.agent,
-            &mut timed,
-            steps,
-            &mut self.tracker,
-            &mut self.rng,
-        )?;
-        let sim_s = timed.secs;
-        let collect_s = t0.elapsed().as_secs_f64();
-        let local = self.env.take_stats();
-        let st = self.rank_stats(local)?;
-        let log = self.env.take_ats_log();
-        if let Some(base) = self.ats_base.take() {
-            let mut all = Vec::new();
-            for b in self.comm.all_gather(&ats_bytes(&log))? {
-                all.extend(ats_records(&b)?);
-            }
-            self.env.replay_ats(base, &all);
-            self.ats_base = Some(self.env.ats().clone());
+        let (c, up, update_s) = if self.cfg.overlap_rollout {
+            self.overlapped(critic_only)?
         } else {
-            self.env.refresh_ats();
-        }
-        let t1 = Instant::now();
-        let up = self.agent.update_with(
-            &ro,
-            &mut self.rng,
-            self.iteration < self.cfg.critic_warmup_iters,
-            self.comm,
-        )?;
-        let update_s = t1.elapsed().as_secs_f64();
+            let (ro, sim_s, collect_s) = gather(
+                &self.agent,
+                &mut self.env,
+                steps,
+                &mut self.tracker,
+                &mut self.rng,
+            )?;
+            let c = self.settle(ro, sim_s, collect_s)?;
+            let t1 = Instant::now();
+            let up = self
+                .agent
+                .update_with(&c.ro, &mut self.rng, critic_only, self.comm)?;
+            (c, up, t1.elapsed().as_secs_f64())
+        };
+        let (st, rs, sim_s, collect_s) = (c.stats, c.returns, c.sim_s, c.collect_s);
         let total_s = t0.elapsed().as_secs_f64();
         self.iteration += 1;
         self.check_weights()?;
         let batch = (n * steps * self.comm.size()) as u64;
         self.samples += batch;
-        let returns = self.tracker.take();
-        let mut rs = [returns.iter().sum::<f64>(), returns.len() as f64];
-        self.comm.sum_f64(&mut rs)?;
         let mean_return = if rs[1] == 0.0 {
             f64::NAN
         } else {
@@ -1113,6 +1253,85 @@ impl<'a> Trainer<'a> {
         Ok(self.metrics.last().expect("a row was just pushed"))
     }
 
+    /// What follows a collection on the main thread: the environment's
+    /// statistics and the finished episodes' returns combined over the
+    /// ranks, and the ATS table refreshed (replayed from every rank's
+    /// records with several ranks).
+    fn settle(&mut self, ro: super::Rollout, sim_s: f64, collect_s: f64) -> Result<Collected> {
+        let local = self.env.take_stats();
+        let stats = self.rank_stats(local)?;
+        let log = self.env.take_ats_log();
+        if let Some(base) = self.ats_base.take() {
+            let mut all = Vec::new();
+            for b in self.comm.all_gather(&ats_bytes(&log))? {
+                all.extend(ats_records(&b)?);
+            }
+            self.env.replay_ats(base, &all);
+            self.ats_base = Some(self.env.ats().clone());
+        } else {
+            self.env.refresh_ats();
+        }
+        let finished = self.tracker.take();
+        let mut returns = [finished.iter().sum::<f64>(), finished.len() as f64];
+        self.comm.sum_f64(&mut returns)?;
+        Ok(Collected {
+            ro,
+            stats,
+            returns,
+            sim_s,
+            collect_s,
+        })
+    }
+
+    /// One iteration with `train.overlap_rollout`: the update learns from
+    /// the pending rollout (collected now if there is none, at the first
+    /// iteration) while a second thread collects the next one with a copy
+    /// of the policy from before this update. Only the main thread calls
+    /// collectives; the rollout thread touches the environment, the
+    /// tracker and the rollout generator alone, so the outputs do not
+    /// depend on how the two threads interleave. Returns the rollout
+    /// learnt from, the update's statistics and its seconds.
+    fn overlapped(&mut self, critic_only: bool) -> Result<(Collected, super::UpdateStats, f64)> {
+        let steps = self.cfg.steps();
+        if self.pending.is_none() {
+            let (ro, sim_s, collect_s) = gather(
+                &self.agent,
+                &mut self.env,
+                steps,
+                &mut self.tracker,
+                &mut self.rng,
+            )?;
+            self.pending = Some(self.settle(ro, sim_s, collect_s)?);
+        }
+        let cur = self.pending.take().expect("a pending rollout");
+        match &mut self.actor {
+            Some(a) => self.agent.copy_into(a)?,
+            None => self.actor = Some(self.agent.actor_copy()?),
+        }
+        let actor = self.actor.as_ref().expect("an actor");
+        let urng = self
+            .update_rng
+            .as_mut()
+            .context("train: overlap_rollout without the update's generator")?;
+        let (env, tracker, rng) = (&mut self.env, &mut self.tracker, &mut self.rng);
+        let (agent, comm) = (&mut self.agent, self.comm);
+        let (next, up, update_s) = std::thread::scope(|sc| {
+            let h = sc.spawn(move || gather(actor, env, steps, tracker, rng));
+            let t1 = Instant::now();
+            let up = agent.update_with(&cur.ro, urng, critic_only, comm);
+            let update_s = t1.elapsed().as_secs_f64();
+            let next = match h.join() {
+                Ok(r) => r,
+                Err(_) => Err(anyhow::anyhow!("train: the rollout thread panicked")),
+            };
+            (next, up, update_s)
+        });
+        let up = up?;
+        let (ro, sim_s, collect_s) = next?;
+        self.pending = Some(self.settle(ro, sim_s, collect_s)?);
+        Ok((cur, up, update_s))
+    }
+
     /// Write the checkpoint into `out/checkpoint/` (staged in
     /// `checkpoint.tmp/`, then swapped into place by
     /// [`crate::table::io::StagedDir`], which leaves `checkpoint.old/` when
@@ -1136,19 +1355,37 @@ impl<'a> Trainer<'a> {
                     actions: r.actions.len(),
                 })
                 .collect(),
+            update_rng: self.update_rng.as_ref().map(RngState::of),
+            pending: self.pending.as_ref().map(|c| PendingMeta {
+                steps: c.ro.steps(),
+                stats: c.stats.clone(),
+                returns: c.returns,
+                sim_s: c.sim_s,
+                collect_s: c.collect_s,
+            }),
         };
         let mine = actions_bytes(&recs);
+        let pending = match &self.pending {
+            Some(c) => Some(c.ro.to_le_bytes()?),
+            None => None,
+        };
         if self.comm.size() == 1 {
-            return self.write_checkpoint(out, part, Vec::new(), vec![mine]);
+            let pendings = pending.into_iter().collect();
+            return self.write_checkpoint(out, part, Vec::new(), vec![mine], pendings);
         }
         let parts = self.comm.gather(&serde_json::to_vec(&part)?)?;
         let actions = self.comm.gather(&mine)?;
-        if let (Some(parts), Some(actions)) = (parts, actions) {
+        // every rank has a pending rollout or none (the same settings)
+        let pendings = match pending {
+            Some(b) => self.comm.gather(&b)?,
+            None => Some(Vec::new()),
+        };
+        if let (Some(parts), Some(actions), Some(pendings)) = (parts, actions, pendings) {
             let others = parts[1..]
                 .iter()
                 .map(|b| serde_json::from_slice(b).context("checkpoint part of another rank"))
                 .collect::<Result<Vec<RankState>>>()?;
-            self.write_checkpoint(out, part, others, actions)?;
+            self.write_checkpoint(out, part, others, actions, pendings)?;
         }
         Ok(())
     }
@@ -1159,6 +1396,7 @@ impl<'a> Trainer<'a> {
         part: RankState,
         others: Vec<RankState>,
         actions: Vec<Vec<u8>>,
+        pendings: Vec<Vec<u8>>,
     ) -> Result<()> {
         let st = TrainerState {
             format: 1,
@@ -1178,6 +1416,9 @@ impl<'a> Trainer<'a> {
             })?;
             for (r, bytes) in actions.iter().enumerate() {
                 dir.bytes(&episodes_file(r), bytes)?;
+            }
+            for (r, bytes) in pendings.iter().enumerate() {
+                dir.bytes(&pending_file(r), bytes)?;
             }
             dir.bytes("state.json", &serde_json::to_vec(&st)?)?;
             dir.commit()

@@ -35,8 +35,18 @@ use std::time::Instant;
 /// Datasets `bench ingest` covers.
 const DATASETS: [&str; 4] = ["ballplay", "ballplay-m", "locomotion", "parahome"];
 
-/// Run benchmark `what`.
-pub fn run(what: Bench, repeat: usize, data_root: Option<PathBuf>, sets: &[String]) -> Result<()> {
+/// Run benchmark `what`; `device` holds the networks of `bench train`.
+///
+/// # Errors
+/// `--set` for another benchmark than `sim`, `--device` other than the CPU
+/// for another than `train`, missing data, or a failed measurement.
+pub fn run(
+    what: Bench,
+    repeat: usize,
+    data_root: Option<PathBuf>,
+    sets: &[String],
+    device: crate::nn::DeviceName,
+) -> Result<()> {
     let sets = sets
         .iter()
         .map(|s| crate::config::SetArg::parse_for(s, &["sim"]))
@@ -44,11 +54,14 @@ pub fn run(what: Bench, repeat: usize, data_root: Option<PathBuf>, sets: &[Strin
     if what != Bench::Sim && !sets.is_empty() {
         bail!("only `bench sim` takes --set (sim.* keys)");
     }
+    if what != Bench::Train && device != crate::nn::DeviceName::Cpu {
+        bail!("only `bench train` takes --device");
+    }
     let opts: SimOptions = crate::config::resolve(&crate::config::Recipe::default(), "sim", &sets)?;
     match what {
         Bench::Ingest => ingest(repeat.max(1), data_root),
         Bench::Sim => sim(repeat.max(1), data_root, &opts),
-        Bench::Train => train(repeat.max(1), data_root),
+        Bench::Train => train(repeat.max(1), data_root, device),
         Bench::He => he(repeat.max(1)),
     }
 }
@@ -153,14 +166,15 @@ fn sim(repeat: usize, data_root: Option<PathBuf>, opts: &SimOptions) -> Result<(
     Ok(())
 }
 
-fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
+fn train(repeat: usize, data_root: Option<PathBuf>, device: crate::nn::DeviceName) -> Result<()> {
     use crate::augment::settings::StfConfig;
-    use crate::rl::bench::time_iterations;
+    use crate::rl::bench::{time_iterations, Timing};
     use crate::rl::config::{Preset, TrainConfig};
     use crate::rl::trainer::Setup;
     let (_tmp, out) = ballplay(data_root.clone())?;
+    let dev = device.open()?;
     println!(
-        "{:<26} {:>10} {:>14} {:>9} {:>12} {:>10} {:>13}   ({} threads; medians of {repeat} iterations after one more)",
+        "{:<26} {:>10} {:>14} {:>9} {:>12} {:>10} {:>13}   ({} threads, networks on {device}; medians of {repeat} iterations after one more)",
         "preset",
         "samples/s",
         "sim-only bound",
@@ -170,14 +184,41 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
         "update us/samp",
         rayon::current_num_threads()
     );
-    // Each preset twice: the update on flat buffers (what training runs on
-    // the CPU) and on candle's autograd (`Agent::use_autograd`), so that the
-    // two compare within one run.
-    for (name, preset, envs, autograd) in [
-        ("cpu (128 x 32, mb 2048)", Preset::Cpu, None, false),
-        ("  same, autograd update", Preset::Cpu, None, true),
-        ("paper nets (1024-512-512)", Preset::Paper, Some(512), false),
-        ("  same, autograd update", Preset::Paper, Some(512), true),
+    // Each preset three times: the update on flat buffers (what training
+    // runs on the CPU; autograd elsewhere), on candle's autograd
+    // (`Agent::use_autograd`), and with the next rollout collected during
+    // the update (`train.overlap_rollout`), so that they compare within one
+    // run. The overlapped row's share is of the bound of the preset's first
+    // row: while they overlap, the update slows the simulation it shares
+    // the cores with, which lowers the bound measured in its own iterations.
+    let mut first_bound = f64::NAN;
+    for (name, preset, envs, timing) in [
+        ("cpu (128 x 32, mb 2048)", Preset::Cpu, None, Timing::Flat),
+        (
+            "  same, autograd update",
+            Preset::Cpu,
+            None,
+            Timing::Autograd,
+        ),
+        ("  same, overlapped", Preset::Cpu, None, Timing::Overlapped),
+        (
+            "paper nets (1024-512-512)",
+            Preset::Paper,
+            Some(512),
+            Timing::Flat,
+        ),
+        (
+            "  same, autograd update",
+            Preset::Paper,
+            Some(512),
+            Timing::Autograd,
+        ),
+        (
+            "  same, overlapped",
+            Preset::Paper,
+            Some(512),
+            Timing::Overlapped,
+        ),
     ] {
         let cfg = TrainConfig {
             skills: vec!["run".into()],
@@ -187,12 +228,20 @@ fn train(repeat: usize, data_root: Option<PathBuf>) -> Result<()> {
             ..TrainConfig::default()
         };
         let s = Setup::load(&out, data_root.as_deref(), &cfg, &StfConfig::default())?;
-        let t = time_iterations(&s, &cfg, repeat, autograd)?;
+        let t = time_iterations(&s, &cfg, repeat, timing, &dev)?;
+        if timing == Timing::Flat {
+            first_bound = t.bound();
+        }
+        let bound = if timing == Timing::Overlapped {
+            first_bound
+        } else {
+            t.bound()
+        };
         println!(
             "{name:<26} {:>10.0} {:>14.0} {:>8.0}% {:>12.0} {:>10.0} {:>13.0}",
             t.samples_per_s(),
-            t.bound(),
-            100.0 * t.samples_per_s() / t.bound(),
+            bound,
+            100.0 * t.samples_per_s() / bound,
             t.us_per_sample(t.sim),
             t.us_per_sample(t.act),
             t.us_per_sample(t.update),
