@@ -300,9 +300,116 @@ mod mpi_impl {
     }
 }
 
+/// [`Comm::gather`] of messages of any size: every rank's `bytes`, in rank
+/// order, on rank 0 (`None` elsewhere), sent in as many rounds as it takes
+/// to keep each round's total over the ranks within `max_round` bytes (an
+/// MPI gather counts its bytes in an `i32`, 2 GiB in all: [`gather_large`]
+/// passes 1 GiB). The ranks first share their lengths, so every rank takes
+/// part in the same rounds even when the lengths differ.
+///
+/// # Errors
+/// A collective that fails.
+pub fn gather_in_rounds(
+    comm: &dyn Comm,
+    bytes: &[u8],
+    max_round: usize,
+) -> Result<Option<Vec<Vec<u8>>>> {
+    let lens = comm.all_gather(&(bytes.len() as u64).to_le_bytes())?;
+    let longest = lens
+        .iter()
+        .map(|b| u64::from_le_bytes(b[..8].try_into().expect("8 bytes")) as usize)
+        .max()
+        .unwrap_or(0);
+    let piece = (max_round / comm.size().max(1)).max(1);
+    let rounds = longest.div_ceil(piece).max(1);
+    let mut out: Option<Vec<Vec<u8>>> = None;
+    for k in 0..rounds {
+        let part = &bytes[(k * piece).min(bytes.len())..((k + 1) * piece).min(bytes.len())];
+        if let Some(got) = comm.gather(part)? {
+            match &mut out {
+                None => out = Some(got),
+                Some(all) => {
+                    for (a, g) in all.iter_mut().zip(got) {
+                        a.extend(g);
+                    }
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// [`gather_in_rounds`] with rounds of at most 1 GiB in all.
+///
+/// # Errors
+/// A collective that fails.
+pub fn gather_large(comm: &dyn Comm, bytes: &[u8]) -> Result<Option<Vec<Vec<u8>>>> {
+    gather_in_rounds(comm, bytes, 1 << 30)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Two ranks as rank 0 sees them: rank 1 sends `other`.
+    struct TwoRanks {
+        other: Vec<u8>,
+        len_calls: std::cell::Cell<usize>,
+        offset: std::cell::Cell<usize>,
+    }
+
+    impl Comm for TwoRanks {
+        fn rank(&self) -> usize {
+            0
+        }
+        fn size(&self) -> usize {
+            2
+        }
+        fn sum_f32(&self, _: &mut [f32]) -> Result<()> {
+            Ok(())
+        }
+        fn sum_f64(&self, _: &mut [f64]) -> Result<()> {
+            Ok(())
+        }
+        fn all_gather(&self, bytes: &[u8]) -> Result<Vec<Vec<u8>>> {
+            self.len_calls.set(self.len_calls.get() + 1);
+            let theirs = (self.other.len() as u64).to_le_bytes().to_vec();
+            Ok(vec![bytes.to_vec(), theirs])
+        }
+        fn gather(&self, bytes: &[u8]) -> Result<Option<Vec<Vec<u8>>>> {
+            // rank 1 sends the same share of its message per round as rank 0
+            let at = self.offset.get();
+            let piece = bytes.len().max(1);
+            let end = (at + piece).min(self.other.len());
+            let theirs = self.other[at.min(end)..end].to_vec();
+            self.offset.set(end);
+            Ok(Some(vec![bytes.to_vec(), theirs]))
+        }
+        fn check_identical(&self, _: u64, _: &str) -> Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn large_gathers_go_in_rounds_and_arrive_whole() {
+        let mine: Vec<u8> = (0..1000u32).map(|i| (i % 251) as u8).collect();
+        let other: Vec<u8> = (0..1000u32).map(|i| (i % 13) as u8).collect();
+        let comm = TwoRanks {
+            other: other.clone(),
+            len_calls: 0.into(),
+            offset: 0.into(),
+        };
+        // 64 bytes per round over two ranks: 32 each, 32 rounds
+        let got = gather_in_rounds(&comm, &mine, 64).unwrap().unwrap();
+        assert_eq!(got, vec![mine.clone(), other]);
+        assert_eq!(comm.len_calls.get(), 1);
+        // one rank: one round, the message itself
+        assert_eq!(
+            gather_large(&Solo, &mine).unwrap(),
+            Some(vec![mine.clone()])
+        );
+        assert_eq!(gather_in_rounds(&Solo, &[], 8).unwrap(), Some(vec![vec![]]));
+    }
 
     #[test]
     fn solo_collectives_are_the_identity() {

@@ -468,10 +468,13 @@ impl Rollout {
         Ok(())
     }
 
-    /// A finished buffer as little-endian bytes, for a checkpoint: the
-    /// `f32` arrays obs, actions, logp, values, rewards, bootstrap values
-    /// and last values, then the flags terminated and truncated, one byte
-    /// each. [`Rollout::from_le_bytes`] reads them back exactly.
+    /// A finished buffer of `T` steps of `N` environments as little-endian
+    /// bytes, for a checkpoint: the `f32` arrays obs `[T][N][obs_dim]`,
+    /// actions `[T][N][act_dim]`, logp, values, rewards and bootstrap
+    /// values `[T][N]` each, last values `[N]`, then the flags terminated
+    /// and truncated `[T][N]`, one byte each: `4 (T N (obs_dim + act_dim +
+    /// 4) + N) + 2 T N` bytes. [`Rollout::from_le_bytes`] reads them back
+    /// exactly.
     ///
     /// # Errors
     /// When the buffer is not finished.

@@ -670,8 +670,9 @@ struct Loaded {
     part: RankState,
     /// This rank's running episodes.
     recs: Vec<EpisodeRecord>,
-    /// This rank's pending rollout's bytes (`train.overlap_rollout`).
-    pending: Option<Vec<u8>>,
+    /// This rank's pending rollout's file and bytes
+    /// (`train.overlap_rollout`).
+    pending: Option<(PathBuf, Vec<u8>)>,
 }
 
 /// Read the checkpoint of `out` (`checkpoint/`, or `checkpoint.old/` when
@@ -716,7 +717,9 @@ fn load_checkpoint(
     let recs = records_of(&dir, &episodes_file(rank), &part.episodes)?;
     let pending = if part.pending.is_some() {
         let path = dir.join(pending_file(rank));
-        Some(std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?)
+        let bytes = std::fs::read(&path)
+            .with_context(|| format!("--resume: cannot read {}", path.display()))?;
+        Some((path, bytes))
     } else {
         None
     };
@@ -943,9 +946,14 @@ impl<'a> Trainer<'a> {
             cfg.overlap_rollout
         );
         let pending = match (&part.pending, pending_bytes) {
-            (Some(m), Some(b)) => Some(Collected {
+            (Some(m), Some((path, b))) => Some(Collected {
                 ro: super::Rollout::from_le_bytes(n, env.obs_dim(), env.act_dim(), m.steps, &b)
-                    .with_context(|| format!("--resume: {}", pending_file(comm.rank())))?,
+                    .with_context(|| {
+                        format!(
+                            "--resume: {} is damaged (restore the checkpoint, or start a new --out)",
+                            path.display()
+                        )
+                    })?,
                 stats: m.stats.clone(),
                 returns: m.returns,
                 sim_s: m.sim_s,
@@ -1145,7 +1153,9 @@ impl<'a> Trainer<'a> {
         self.iteration
     }
 
-    /// Samples collected by all ranks so far.
+    /// Samples learnt from by all ranks so far (with
+    /// `train.overlap_rollout` one more batch has been simulated: the
+    /// pending rollout).
     pub fn samples(&self) -> u64 {
         self.samples
     }
@@ -1155,7 +1165,7 @@ impl<'a> Trainer<'a> {
         &self.metrics
     }
 
-    /// Whether `train.samples` are collected.
+    /// Whether `train.samples` have been learnt from.
     pub fn done(&self) -> bool {
         self.samples >= self.cfg.samples
     }
@@ -1174,7 +1184,12 @@ impl<'a> Trainer<'a> {
     }
 
     /// Collect one batch, update the agent and return the iteration's
-    /// metrics (every rank's, combined).
+    /// metrics (every rank's, combined). With `train.overlap_rollout` the
+    /// update learns from the batch collected during the previous call
+    /// (by the policy before that call's update: one update behind the
+    /// policy this update starts from; the first call collects its own), the
+    /// metrics are those of that batch, and the next batch is collected
+    /// meanwhile ([`Trainer::samples`] counts the batches learnt from).
     ///
     /// # Errors
     /// A failure of the environment, the update, a collective, or ranks
@@ -1375,9 +1390,11 @@ impl<'a> Trainer<'a> {
         }
         let parts = self.comm.gather(&serde_json::to_vec(&part)?)?;
         let actions = self.comm.gather(&mine)?;
-        // every rank has a pending rollout or none (the same settings)
+        // every rank has a pending rollout or none (the same settings);
+        // they can pass MPI's 2 GiB per gather (about 16k environments in
+        // all at 32 steps), so they go in rounds
         let pendings = match pending {
-            Some(b) => self.comm.gather(&b)?,
+            Some(b) => super::comm::gather_large(self.comm, &b)?,
             None => Some(Vec::new()),
         };
         if let (Some(parts), Some(actions), Some(pendings)) = (parts, actions, pendings) {
