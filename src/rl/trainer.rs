@@ -1202,14 +1202,7 @@ impl<'a> Trainer<'a> {
         let (c, up, update_s) = if self.cfg.overlap_rollout {
             self.overlapped(critic_only)?
         } else {
-            let (ro, sim_s, collect_s) = gather(
-                &self.agent,
-                &mut self.env,
-                steps,
-                &mut self.tracker,
-                &mut self.rng,
-            )?;
-            let c = self.settle(ro, sim_s, collect_s)?;
+            let c = self.collect_now()?;
             let t1 = Instant::now();
             let up = self
                 .agent
@@ -1268,6 +1261,18 @@ impl<'a> Trainer<'a> {
         Ok(self.metrics.last().expect("a row was just pushed"))
     }
 
+    /// Collect one rollout with the agent itself, then [`Trainer::settle`].
+    fn collect_now(&mut self) -> Result<Collected> {
+        let (ro, sim_s, collect_s) = gather(
+            &self.agent,
+            &mut self.env,
+            self.cfg.steps(),
+            &mut self.tracker,
+            &mut self.rng,
+        )?;
+        self.settle(ro, sim_s, collect_s)
+    }
+
     /// What follows a collection on the main thread: the environment's
     /// statistics and the finished episodes' returns combined over the
     /// ranks, and the ATS table refreshed (replayed from every rank's
@@ -1309,14 +1314,7 @@ impl<'a> Trainer<'a> {
     fn overlapped(&mut self, critic_only: bool) -> Result<(Collected, super::UpdateStats, f64)> {
         let steps = self.cfg.steps();
         if self.pending.is_none() {
-            let (ro, sim_s, collect_s) = gather(
-                &self.agent,
-                &mut self.env,
-                steps,
-                &mut self.tracker,
-                &mut self.rng,
-            )?;
-            self.pending = Some(self.settle(ro, sim_s, collect_s)?);
+            self.pending = Some(self.collect_now()?);
         }
         let cur = self.pending.take().expect("a pending rollout");
         match &mut self.actor {
