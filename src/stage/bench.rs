@@ -5,7 +5,9 @@
 //! the median wall time per dataset and in total, with the throughput.
 //!
 //! `bench train` times whole PPO iterations of the CPU preset and of the
-//! paper's networks on the Dribble-Forward clips ([`crate::rl::bench`]) and
+//! paper's networks on the Dribble-Forward clips ([`crate::rl::bench`]),
+//! each with the update on flat buffers, on candle's autograd and
+//! overlapped with the next rollout, the networks on `--device`, and
 //! prints samples per second beside the simulation-only bound.
 //!
 //! `bench he` times the history encoder's embedding of one window, at the
