@@ -13,8 +13,8 @@
 //! the update ([`Timing::Overlapped`]).
 
 use crate::rl::config::TrainConfig;
-use crate::rl::trainer::{environment, Setup, Timed};
-use crate::rl::{collect, Agent, EpisodeTracker, VecEnv as _};
+use crate::rl::trainer::{environment, gather, update_stream, Setup};
+use crate::rl::{Agent, EpisodeTracker, VecEnv as _};
 use crate::sim::bench::median;
 use anyhow::Result;
 use rand::SeedableRng;
@@ -76,7 +76,7 @@ pub enum Timing {
 /// both.
 ///
 /// # Errors
-/// As [`environment`], [`Agent::new`], [`collect`] and [`Agent::update`].
+/// As [`environment`], [`Agent::new`], [`crate::rl::collect`] and [`Agent::update`].
 pub fn time_iterations(
     s: &Setup,
     cfg: &TrainConfig,
@@ -90,14 +90,9 @@ pub fn time_iterations(
     agent.use_autograd(timing == Timing::Autograd);
     let mut tracker = EpisodeTracker::new(cfg.envs());
     let (mut sim, mut act, mut upd, mut total) = (vec![], vec![], vec![], vec![]);
-    let gather = |agent: &Agent, env: &mut _, tracker: &mut _, rng: &mut _| -> Result<_> {
-        let t0 = Instant::now();
-        let mut timed = Timed { env, secs: 0.0 };
-        let ro = collect(agent, &mut timed, cfg.steps(), tracker, rng)?;
-        Ok((ro, timed.secs, t0.elapsed().as_secs_f64()))
-    };
+    let steps = cfg.steps();
     let mut urng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
-    urng.set_stream(1 << 32);
+    urng.set_stream(update_stream(0));
     let mut actor = agent.actor_copy()?;
     let mut pending = None;
     for i in 0..=repeat.max(1) {
@@ -105,12 +100,12 @@ pub fn time_iterations(
         let (sim_s, c, update_s) = if timing == Timing::Overlapped {
             let ro = match pending.take() {
                 Some(ro) => ro,
-                None => gather(&agent, &mut env, &mut tracker, &mut rng)?.0,
+                None => gather(&agent, &mut env, steps, &mut tracker, &mut rng)?.0,
             };
             agent.copy_into(&mut actor)?;
             let (a, e, t, r, ag) = (&actor, &mut env, &mut tracker, &mut rng, &mut agent);
             let (next, up) = std::thread::scope(|sc| {
-                let h = sc.spawn(move || gather(a, e, t, r));
+                let h = sc.spawn(move || gather(a, e, steps, t, r));
                 let t1 = Instant::now();
                 let up = ag
                     .update(&ro, &mut urng)
@@ -123,7 +118,7 @@ pub fn time_iterations(
             pending = Some(ro);
             (sim_s, c, update_s)
         } else {
-            let (ro, sim_s, c) = gather(&agent, &mut env, &mut tracker, &mut rng)?;
+            let (ro, sim_s, c) = gather(&agent, &mut env, steps, &mut tracker, &mut rng)?;
             let t1 = Instant::now();
             agent.update(&ro, &mut rng)?;
             (sim_s, c, t1.elapsed().as_secs_f64())

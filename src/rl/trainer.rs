@@ -519,13 +519,16 @@ struct Collected {
 
 /// The ChaCha8 stream of rank `rank`'s update generator with
 /// `train.overlap_rollout` (the rollout generators use streams 0..R).
-fn update_stream(rank: usize) -> u64 {
+pub fn update_stream(rank: usize) -> u64 {
     (1u64 << 32) + rank as u64
 }
 
 /// Collect `steps` steps of `env` with `actor`: the rollout, the seconds
 /// spent in the environment's steps, and the whole collection's seconds.
-fn gather(
+///
+/// # Errors
+/// As [`collect`].
+pub fn gather(
     actor: &Agent,
     env: &mut HumanoidEnv<'_>,
     steps: usize,
