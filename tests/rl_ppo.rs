@@ -141,19 +141,27 @@ fn an_actor_copy_acts_alike_and_keeps_its_weights_while_the_agent_updates() {
 #[test]
 fn a_rollout_reads_back_from_its_bytes_exactly() {
     let mut r = start(5);
-    let ro = collect(&r.agent, &mut r.env, HORIZON, &mut r.tracker, &mut r.rng).unwrap();
+    // longer than an episode (EP_LEN), so episodes end inside the rollout
+    // and its end-of-episode flags are set where they travel
+    let steps = 2 * EP_LEN;
+    let ro = collect(&r.agent, &mut r.env, steps, &mut r.tracker, &mut r.rng).unwrap();
+    assert!(!r.tracker.finished.is_empty(), "no episode ended");
     let b = ro.to_le_bytes().unwrap();
-    let back = Rollout::from_le_bytes(N_ENVS, OBS_DIM, ACT_DIM, HORIZON, &b).unwrap();
+    let back = Rollout::from_le_bytes(N_ENVS, OBS_DIM, ACT_DIM, steps, &b).unwrap();
     assert_eq!(back, ro);
     let (adv, ret) = ro.advantages(0.99, 0.95).unwrap();
     assert_eq!(back.advantages(0.99, 0.95).unwrap(), (adv, ret));
-    // the episodes ended inside the rollout are kept (flags), and bad bytes are refused
-    assert!(ro != Rollout::new(N_ENVS, OBS_DIM, ACT_DIM));
-    let e = Rollout::from_le_bytes(N_ENVS, OBS_DIM, ACT_DIM, HORIZON, &b[1..]).unwrap_err();
+    // bad bytes are refused
+    let e = Rollout::from_le_bytes(N_ENVS, OBS_DIM, ACT_DIM, steps, &b[1..]).unwrap_err();
     assert!(e.to_string().contains("expected"), "{e}");
     let mut bad = b.clone();
     *bad.last_mut().unwrap() = 2;
-    assert!(Rollout::from_le_bytes(N_ENVS, OBS_DIM, ACT_DIM, HORIZON, &bad).is_err());
+    assert!(Rollout::from_le_bytes(N_ENVS, OBS_DIM, ACT_DIM, steps, &bad).is_err());
+    // a flipped flag byte reads back as a different rollout
+    let mut flipped = b.clone();
+    *flipped.last_mut().unwrap() ^= 1;
+    let other = Rollout::from_le_bytes(N_ENVS, OBS_DIM, ACT_DIM, steps, &flipped).unwrap();
+    assert_ne!(other, ro);
     assert!(Rollout::new(N_ENVS, OBS_DIM, ACT_DIM)
         .to_le_bytes()
         .is_err());
