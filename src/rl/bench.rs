@@ -13,7 +13,7 @@
 //! the update ([`Timing::Overlapped`]).
 
 use crate::rl::config::TrainConfig;
-use crate::rl::trainer::{environment, gather, update_stream, Setup};
+use crate::rl::trainer::{environment, gather, gather_during, update_stream, Setup};
 use crate::rl::{Agent, EpisodeTracker, VecEnv as _};
 use crate::sim::bench::median;
 use anyhow::Result;
@@ -103,18 +103,11 @@ pub fn time_iterations(
                 None => gather(&agent, &mut env, steps, &mut tracker, &mut rng)?.0,
             };
             agent.copy_into(&mut actor)?;
-            let (a, e, t, r, ag) = (&actor, &mut env, &mut tracker, &mut rng, &mut agent);
-            let (next, up) = std::thread::scope(|sc| {
-                let h = sc.spawn(move || gather(a, e, steps, t, r));
-                let t1 = Instant::now();
-                let up = ag
-                    .update(&ro, &mut urng)
-                    .map(|_| t1.elapsed().as_secs_f64());
-                (h.join(), up)
-            });
-            let update_s = up?;
-            let (ro, sim_s, c) =
-                next.map_err(|_| anyhow::anyhow!("the rollout thread panicked"))??;
+            let ag = &mut agent;
+            let (_, update_s, (ro, sim_s, c)) =
+                gather_during(&actor, &mut env, steps, &mut tracker, &mut rng, || {
+                    ag.update(&ro, &mut urng)
+                })?;
             pending = Some(ro);
             (sim_s, c, update_s)
         } else {

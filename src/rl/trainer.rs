@@ -541,6 +541,33 @@ pub fn gather(
     Ok((ro, timed.secs, t0.elapsed().as_secs_f64()))
 }
 
+/// Run `update` on this thread while [`gather`] collects `steps` steps of
+/// `env` with `actor` on a second one (`train.overlap_rollout`): the
+/// update's result and seconds, and the collection's. The collection is
+/// joined before an error of either is returned.
+///
+/// # Errors
+/// The update's or the collection's, or a panic of the rollout thread.
+pub fn gather_during<U>(
+    actor: &Agent,
+    env: &mut HumanoidEnv<'_>,
+    steps: usize,
+    tracker: &mut EpisodeTracker,
+    rng: &mut ChaCha8Rng,
+    update: impl FnOnce() -> Result<U>,
+) -> Result<(U, f64, (super::Rollout, f64, f64))> {
+    std::thread::scope(|sc| {
+        let h = sc.spawn(move || gather(actor, env, steps, tracker, rng));
+        let t1 = Instant::now();
+        let up = update();
+        let update_s = t1.elapsed().as_secs_f64();
+        let next = h
+            .join()
+            .map_err(|_| anyhow::anyhow!("train: the rollout thread panicked"))?;
+        Ok((up?, update_s, next?))
+    })
+}
+
 /// The trainer's state in a checkpoint beside the agent. Rank 0's part is
 /// stored flat (the layout of one-process checkpoints); the other ranks'
 /// parts follow in `ranks`.
@@ -1329,21 +1356,15 @@ impl<'a> Trainer<'a> {
             .update_rng
             .as_mut()
             .context("train: overlap_rollout without the update's generator")?;
-        let (env, tracker, rng) = (&mut self.env, &mut self.tracker, &mut self.rng);
         let (agent, comm) = (&mut self.agent, self.comm);
-        let (next, up, update_s) = std::thread::scope(|sc| {
-            let h = sc.spawn(move || gather(actor, env, steps, tracker, rng));
-            let t1 = Instant::now();
-            let up = agent.update_with(&cur.ro, urng, critic_only, comm);
-            let update_s = t1.elapsed().as_secs_f64();
-            let next = match h.join() {
-                Ok(r) => r,
-                Err(_) => Err(anyhow::anyhow!("train: the rollout thread panicked")),
-            };
-            (next, up, update_s)
-        });
-        let up = up?;
-        let (ro, sim_s, collect_s) = next?;
+        let (up, update_s, (ro, sim_s, collect_s)) = gather_during(
+            actor,
+            &mut self.env,
+            steps,
+            &mut self.tracker,
+            &mut self.rng,
+            || agent.update_with(&cur.ro, urng, critic_only, comm),
+        )?;
         self.pending = Some(self.settle(ro, sim_s, collect_s)?);
         Ok((cur, up, update_s))
     }
