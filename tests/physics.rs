@@ -353,7 +353,7 @@ fn seams_and_check_contact_print_a_row_per_clip() {
 #[test]
 fn a_ball_replayed_under_the_clips_motion_falls_and_bounces_as_the_clips_does() {
     let (_d, lib, model) = ballplay();
-    let found = checks::ball_replays(&lib, &model, &data_root()).unwrap();
+    let found = checks::ball_replays(&lib, &model, &data_root(), &Default::default()).unwrap();
     assert_eq!(found.len(), 6, "every BallPlay clip has its ball");
     let by_name = |n: &str| {
         found
@@ -602,4 +602,93 @@ fn a_push_search_finds_targets_that_push_harder_than_the_clips_own() {
     args.extend(["--set", "check-ball.elites=5"]);
     let err = fails(&args);
     assert!(err.contains("check-ball.elites"), "{err}");
+    // the replay physics are settings too, checked the same way
+    let mut args = base.to_vec();
+    args.extend([
+        "--set",
+        "check-ball.elites=2",
+        "--set",
+        "check-ball.physics.kp_scale=0",
+    ]);
+    let err = fails(&args);
+    assert!(err.contains("check-ball.physics.kp_scale"), "{err}");
+    let mut args = base.to_vec();
+    args.extend([
+        "--set",
+        "check-ball.elites=2",
+        "--set",
+        "check-ball.physics.kp_scale=4",
+    ]);
+    let text = ok(&args);
+    assert!(text.contains("push windows"), "{text}");
+}
+
+#[test]
+fn the_clips_own_push_falls_short_under_finer_steps_stiffer_drives_and_a_lighter_ball() {
+    use skillaug::sim::checks::ReplayPhysics;
+    use skillaug::sim::push::{fit_pushes_of_clip, PushConfig};
+    let (_d, lib, model) = ballplay();
+    let (c, mut objs, _) = df_run(&lib);
+    // the defaults are the physics of training and evaluation
+    let neutral = ReplayPhysics::default();
+    assert_eq!(neutral.options(60.0), SimOptions::for_fps(60.0));
+    assert_eq!(neutral.model(&model), model);
+    let stiff = ReplayPhysics {
+        kp_scale: 4.0,
+        kd_scale: 2.0,
+        ..ReplayPhysics::default()
+    };
+    let m = stiff.model(&model);
+    assert_eq!(
+        m.bodies[1].hinges[0].stiffness,
+        4.0 * model.bodies[1].hinges[0].stiffness
+    );
+    assert_eq!(
+        m.bodies[1].hinges[0].damping,
+        2.0 * model.bodies[1].hinges[0].damping
+    );
+    let own = |p: &ReplayPhysics, objs: &[ObjectSpec]| {
+        // no search: the replay of the clip's own targets alone
+        let cfg = PushConfig {
+            push_search: true,
+            population: 1,
+            elites: 1,
+            iterations: 0,
+            physics: p.clone(),
+            ..PushConfig::default()
+        };
+        let opts = p.options(lib.clips[c].fps as f64);
+        let fits = fit_pushes_of_clip(&lib, c, &p.model(&model), objs, &opts, &cfg, 0).unwrap();
+        (fits[0].vel_ref[2], fits[0].replay.vel[2])
+    };
+    let (clip, base) = own(&neutral, &objs);
+    // measured: the clip's ball leaves the first push at -5.03 m/s, the
+    // replay's at -2.63
+    assert!(clip < -4.5 && base > clip + 2.0, "{clip} {base}");
+    // four times the physics steps with 16 solver iterations: -2.63;
+    // stiffer drives (kp x4, kd x2, the same lag; kp x4 alone, a quarter
+    // of the lag): -3.04 and -3.32; the ball at 83 kg/m^3 (0.6 kg, a
+    // basketball's mass): -2.63. Each leaves at least 1.5 m/s of the gap.
+    let finer = ReplayPhysics {
+        rate_factor: 4,
+        solver_iterations: 16,
+        pgs_iterations: 16,
+        ..ReplayPhysics::default()
+    };
+    let quick = ReplayPhysics {
+        kp_scale: 4.0,
+        ..ReplayPhysics::default()
+    };
+    for p in [&finer, &stiff, &quick] {
+        let (_, v) = own(p, &objs);
+        assert!(v > clip + 1.5, "{p:?}: {v} against the clip's {clip}");
+    }
+    let light = ReplayPhysics {
+        object_density: Some(83.0),
+        ..ReplayPhysics::default()
+    };
+    light.objects(&mut objs);
+    assert_eq!(objs[0].density, 83.0);
+    let (_, v) = own(&light, &objs);
+    assert!(v > clip + 1.5, "light ball: {v} against the clip's {clip}");
 }

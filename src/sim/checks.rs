@@ -16,7 +16,8 @@
 //!   flag, frame by frame, and the proximity radius that agrees best.
 //! - [`ball_replay`] (`skillaug check-ball`): the humanoid replayed from a
 //!   clip frame by frame while its ball is simulated, and how far the ball
-//!   follows the clip's.
+//!   follows the clip's; [`ReplayPhysics`] varies the physics it runs
+//!   under.
 
 use super::mjcf::Model;
 use super::objects::ObjectSpec;
@@ -32,7 +33,110 @@ use anyhow::{anyhow, Context, Result};
 use rand::{Rng, SeedableRng};
 use rapier3d::math::Vector;
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
+
+/// Physics that `skillaug check-ball` replays under, to ask whether the
+/// simulation set-up is what keeps the clips' own motion from pushing
+/// their ball as the clips do (docs/training.md, "The clip's own motion
+/// does not keep its ball"). The defaults change nothing: the physics of
+/// training and evaluation ([`SimOptions::for_fps`], the MJCF gains, the
+/// objects' densities). Set as `check-ball.physics.KEY=VALUE`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReplayPhysics {
+    /// Physics steps per policy step, as a multiple of the default's
+    /// (the physics rate goes up with them, so the policy step stays
+    /// 1/60 s): 4 gives 480 Hz physics and 8 substeps at 60 fps.
+    pub rate_factor: usize,
+    /// rapier solver iterations per physics step ([`SimOptions`]; default 4).
+    pub solver_iterations: usize,
+    /// rapier PGS iterations ([`SimOptions`]; default 4).
+    pub pgs_iterations: usize,
+    /// Factor on every joint's PD stiffness kp.
+    pub kp_scale: f64,
+    /// Factor on every joint's PD damping kd (kd / kp, the drive's lag
+    /// behind a moving target in s, scales by `kd_scale / kp_scale`).
+    pub kd_scale: f64,
+    /// Density of every object, kg/m^3, in place of its own (the ball's
+    /// is 1000: 7.24 kg; a basketball of 0.6 kg and radius 0.12 m has
+    /// about 83). Absent: each object's own.
+    pub object_density: Option<f32>,
+}
+
+impl Default for ReplayPhysics {
+    fn default() -> Self {
+        let d = SimOptions::default();
+        ReplayPhysics {
+            rate_factor: 1,
+            solver_iterations: d.solver_iterations,
+            pgs_iterations: d.pgs_iterations,
+            kp_scale: 1.0,
+            kd_scale: 1.0,
+            object_density: None,
+        }
+    }
+}
+
+impl crate::config::Validate for ReplayPhysics {
+    /// Counts from 1 to 64, gain factors in (0, 100], a density in
+    /// (0, 100000] kg/m^3.
+    fn validate(&self, stage: &str) -> Result<()> {
+        let c = crate::config::Check::new(stage);
+        c.count("physics.rate_factor", self.rate_factor as u64, 1, 64)?;
+        c.count(
+            "physics.solver_iterations",
+            self.solver_iterations as u64,
+            1,
+            1000,
+        )?;
+        c.count(
+            "physics.pgs_iterations",
+            self.pgs_iterations as u64,
+            1,
+            1000,
+        )?;
+        c.range("physics.kp_scale", self.kp_scale, 1e-6, 100.0)?;
+        c.range("physics.kd_scale", self.kd_scale, 1e-6, 100.0)?;
+        if let Some(d) = self.object_density {
+            c.range("physics.object_density", d as f64, 1e-3, 1e5)?;
+        }
+        Ok(())
+    }
+}
+
+impl ReplayPhysics {
+    /// Simulation settings for clips of `fps` frames per second.
+    pub fn options(&self, fps: f64) -> SimOptions {
+        let d = SimOptions::for_fps(fps);
+        SimOptions {
+            physics_hz: d.physics_hz * self.rate_factor as f64,
+            substeps: d.substeps * self.rate_factor,
+            solver_iterations: self.solver_iterations,
+            pgs_iterations: self.pgs_iterations,
+            ..d
+        }
+    }
+
+    /// `model` with every joint's kp and kd scaled.
+    pub fn model(&self, model: &Model) -> Model {
+        let mut m = model.clone();
+        for h in m.bodies.iter_mut().flat_map(|b| b.hinges.iter_mut()) {
+            h.stiffness *= self.kp_scale;
+            h.damping *= self.kd_scale;
+        }
+        m
+    }
+
+    /// `objects` with their density replaced, when one is set.
+    pub fn objects(&self, objects: &mut [ObjectSpec]) {
+        if let Some(d) = self.object_density {
+            for o in objects {
+                o.density = d;
+            }
+        }
+    }
+}
 
 /// Angle between two exp-map rotations, rad.
 pub fn angle_between(a: &[f32], b: &[f32]) -> f32 {
@@ -257,7 +361,7 @@ pub fn contact_agreements(
     model: &Model,
     root: &Path,
 ) -> Result<Vec<(usize, ContactAgreement)>> {
-    per_clip_with_objects(lib, root, |c, objs, opts| {
+    per_clip_with_objects(lib, root, &ReplayPhysics::default(), |c, objs, opts| {
         contact_agreement(lib, c, model, objs, opts)
     })
 }
@@ -273,14 +377,16 @@ pub fn contact_agreements(
 pub(crate) fn per_clip_with_objects<T: Send>(
     lib: &MotionLib,
     root: &Path,
+    physics: &ReplayPhysics,
     check: impl Fn(usize, &[ObjectSpec], &SimOptions) -> Result<Option<T>> + Sync,
 ) -> Result<Vec<(usize, T)>> {
     let per_clip = (0..lib.clips.len())
         .into_par_iter()
         .map(|c| {
             let row = &lib.clips[c];
-            let objs = super::objects::load_all(&row.objects, root)?;
-            let opts = SimOptions::for_fps(row.fps as f64);
+            let mut objs = super::objects::load_all(&row.objects, root)?;
+            physics.objects(&mut objs);
+            let opts = physics.options(row.fps as f64);
             let found = check(c, &objs, &opts).with_context(|| format!("clip {}", row.name))?;
             Ok(found.map(|t| (c, t)))
         })
@@ -532,8 +638,8 @@ pub fn ball_replay(
 
 /// [`ball_replay`] of every clip of `lib` that has objects, with a dynamic
 /// and with a kinematic humanoid, in parallel (objects read under data root
-/// `root`, each clip at its frame rate): `(clip id, dynamic, kinematic)`
-/// in clip order.
+/// `root`, each clip at its frame rate, under `physics`): `(clip id,
+/// dynamic, kinematic)` in clip order.
 ///
 /// # Errors
 /// An object that cannot be read, or as [`ball_replay`] (the message names
@@ -542,8 +648,10 @@ pub fn ball_replays(
     lib: &MotionLib,
     model: &Model,
     root: &Path,
+    physics: &ReplayPhysics,
 ) -> Result<Vec<(usize, BallReplay, BallReplay)>> {
-    let both = per_clip_with_objects(lib, root, |c, objs, opts| {
+    let model = &physics.model(model);
+    let both = per_clip_with_objects(lib, root, physics, |c, objs, opts| {
         let dynamic = ball_replay(lib, c, model, objs, opts, false)?;
         let kinematic = ball_replay(lib, c, model, objs, opts, true)?;
         Ok(dynamic.zip(kinematic))

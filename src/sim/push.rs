@@ -25,6 +25,7 @@
 //! Measured figures are in docs/training.md ("No nearby targets push as the
 //! clip does").
 
+use super::checks::ReplayPhysics;
 use super::mjcf::Model;
 use super::world::{hand_bodies, joint_rates, SimOptions, World};
 use super::ObjectSpec;
@@ -59,6 +60,9 @@ pub struct PushConfig {
     pub iterations: usize,
     /// Standard deviation of the first round's Gaussian, rad per axis.
     pub init_sd: f64,
+    /// Physics of the replays and the search (`check-ball.physics.KEY`;
+    /// the defaults are training's).
+    pub physics: ReplayPhysics,
 }
 
 impl Default for PushConfig {
@@ -71,6 +75,7 @@ impl Default for PushConfig {
             elites: 8,
             iterations: 12,
             init_sd: 0.3,
+            physics: ReplayPhysics::default(),
         }
     }
 }
@@ -86,7 +91,7 @@ impl crate::config::Validate for PushConfig {
         c.count("elites", self.elites as u64, 1, self.population as u64)?;
         c.count("iterations", self.iterations as u64, 0, 10_000)?;
         c.range("init_sd", self.init_sd, 1e-6, 10.0)?;
-        Ok(())
+        crate::config::Validate::validate(&self.physics, stage)
     }
 }
 
@@ -350,7 +355,7 @@ pub fn fit_pushes_of_clip(
 }
 
 /// [`fit_pushes_of_clip`] for every clip of `lib` whose object 0 is the
-/// ball (objects from `root`).
+/// ball (objects from `root`), under `cfg.physics`.
 ///
 /// # Errors
 /// As [`fit_pushes_of_clip`], naming the clip; an object that cannot be
@@ -362,11 +367,13 @@ pub fn fit_pushes(
     cfg: &PushConfig,
     seed: u64,
 ) -> Result<Vec<PushFit>> {
-    let per_clip = super::checks::per_clip_with_objects(lib, root, |c, objs, opts| {
-        if objs.first().is_none_or(|o| o.name != "ball") {
-            return Ok(None);
-        }
-        fit_pushes_of_clip(lib, c, model, objs, opts, cfg, seed).map(Some)
-    })?;
+    let model = &cfg.physics.model(model);
+    let per_clip =
+        super::checks::per_clip_with_objects(lib, root, &cfg.physics, |c, objs, opts| {
+            if objs.first().is_none_or(|o| o.name != "ball") {
+                return Ok(None);
+            }
+            fit_pushes_of_clip(lib, c, model, objs, opts, cfg, seed).map(Some)
+        })?;
     Ok(per_clip.into_iter().flat_map(|(_, v)| v).collect())
 }

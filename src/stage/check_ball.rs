@@ -14,6 +14,12 @@
 //! ([`crate::sim::push`]), and prints the vertical release velocity of the
 //! clip, of the PD replay of its own targets and of the two searches, with
 //! the size of the offsets found.
+//!
+//! `--set check-ball.physics.KEY=VALUE` runs both under other physics
+//! ([`crate::sim::checks::ReplayPhysics`]: more physics steps or solver
+//! iterations, scaled PD gains, another object density), to ask whether
+//! the simulation set-up is what keeps the clips' motion from pushing
+//! their ball.
 
 use super::Common;
 use crate::sim::checks::ball_replays;
@@ -31,7 +37,7 @@ pub fn run(common: &Common) -> Result<()> {
     let lib = crate::table::load_library(common.input_dir())?;
     let root = crate::dataset::data_root(common.args.data_root.as_deref())?;
     let model = Model::for_skeleton(&root, lib.skeleton)?;
-    let found = ball_replays(&lib, &model, &root)?;
+    let found = ball_replays(&lib, &model, &root, &cfg.physics)?;
     if found.is_empty() {
         bail!(
             "check-ball: no clip in {} has an object",
