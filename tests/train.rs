@@ -52,9 +52,10 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // blends; the grace after seams is set too, but without early
     // termination it only keeps its seam bookkeeping (its effect is tested
     // in a_grace_after_seams_keeps_the_key_point_rule_off_...), clips
-    // left early at their best seams, and rollouts collected on a second
+    // left early at their best seams, rollouts collected on a second
     // thread during the update (the pending rollout and the update's
-    // generator travel in the checkpoint)
+    // generator travel in the checkpoint), and the object assist, fading
+    // from 0.5 to 0.25 over the run (its strength follows the samples)
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -92,6 +93,10 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.reward_weights={ opv = 0.5, op = 2.0 }",
             "--set",
             "train.overlap_rollout=true",
+            "--set",
+            "train.object_assist=0.5",
+            "--set",
+            "train.object_assist_samples=3840",
         ],
     );
 }
@@ -976,4 +981,80 @@ fn clips_left_early_loop_where_their_seams_are_more_similar() {
         better >= 2,
         "only {better} seams became clearly more similar"
     );
+}
+
+#[test]
+fn the_object_assist_pulls_the_ball_along_its_reference_and_fades_out() {
+    // Zero residual actions replay DF's reference pose under PD; the
+    // clips' own motion loses the ball (docs/training.md). With the assist
+    // at full strength the ball follows its reference, and the SM reward's
+    // object factor rises.
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        early_termination: false,
+        episode_length: 120,
+        residual_action: true,
+        ..TrainConfig::default()
+    };
+    let (_dir, run) = ingested("ballplay");
+    let s = setup_for(&run, &base);
+    let n = 4;
+    // mean distance of the ball to its reference's over 40 steps, m, and
+    // the mean SM object factor
+    let run_env = |assist: f32| -> (f64, f64) {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut env = environment(&s, &base, None, n, &mut rng).unwrap();
+        env.set_object_assist(assist);
+        let zeros = vec![0f32; n * env.act_dim()];
+        let (mut sum, mut count) = (0.0, 0);
+        for _ in 0..40 {
+            env.step(&zeros, &mut rng).unwrap();
+            for e in 0..n {
+                let r = env.reference_of(e).expect("continued references");
+                let b = env.probes()[e].obj[0];
+                let d: f32 = (0..3).map(|k| (b[k] - r.obj_pos[k]).powi(2)).sum();
+                sum += d.sqrt() as f64;
+                count += 1;
+            }
+        }
+        (sum / count as f64, env.take_stats().mean_sm_factor(1))
+    };
+    let (d0, obj0) = run_env(0.0);
+    let (d1, obj1) = run_env(1.0);
+    eprintln!("ball to reference over 40 steps: {d0:.3} m without assist, {d1:.3} m with; r_o {obj0:.3} / {obj1:.3}");
+    assert!(d1 < 0.5 * d0, "{d1} against {d0}");
+    assert!(obj1 > obj0, "r_o {obj1} against {obj0}");
+
+    // the strength fades linearly with the samples learnt, to 0, and is
+    // off unless both settings are given
+    let cfg = TrainConfig {
+        object_assist: 0.8,
+        object_assist_samples: 1000,
+        ..TrainConfig::default()
+    };
+    assert_eq!(cfg.object_assist_at(0), 0.8);
+    assert!((cfg.object_assist_at(250) - 0.6).abs() < 1e-12);
+    assert_eq!(cfg.object_assist_at(1000), 0.0);
+    assert_eq!(cfg.object_assist_at(5000), 0.0);
+    assert_eq!(TrainConfig::default().object_assist_at(0), 0.0);
+    let from = run.to_str().unwrap();
+    let out = run.parent().unwrap().join("t");
+    let err = fails(&train_args(
+        from,
+        out.to_str().unwrap(),
+        &["--set", "train.object_assist=0.5"],
+    ));
+    assert!(err.contains("train.object_assist_samples"), "{err}");
+    assert!(!out.exists(), "no output for refused settings");
+    let err = fails(&train_args(
+        from,
+        out.to_str().unwrap(),
+        &[
+            "--set",
+            "train.object_assist=1.5",
+            "--set",
+            "train.object_assist_samples=10",
+        ],
+    ));
+    assert!(err.contains("train.object_assist"), "{err}");
 }

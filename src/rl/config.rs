@@ -234,6 +234,23 @@ pub struct TrainConfig {
     /// reference code). Not written when off.
     #[serde(skip_serializing_if = "is_false")]
     pub overlap_rollout: bool,
+    /// Object assist at the start of training, in [0, 1] (0 = off): object
+    /// 0 is pulled towards the reference's object at every step
+    /// ([`crate::rl::humanoid::EnvConfig::object_assist`]), with a strength
+    /// that fades linearly from this value to 0 over
+    /// `object_assist_samples` ([`TrainConfig::object_assist_at`]).
+    /// Evaluation never assists. Not in the paper or the reference code.
+    /// Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_f64")]
+    pub object_assist: f64,
+    /// Samples over which the object assist fades to 0 (needed when
+    /// `object_assist` is on). Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_u64")]
+    pub object_assist_samples: u64,
+}
+
+fn is_zero_u64(x: &u64) -> bool {
+    *x == 0
 }
 
 fn is_zero_f64(x: &f64) -> bool {
@@ -348,6 +365,8 @@ impl Default for TrainConfig {
             term_object_error: 0.0,
             reward_weights: WeightOverrides::default(),
             overlap_rollout: false,
+            object_assist: 0.0,
+            object_assist_samples: 0,
         }
     }
 }
@@ -364,6 +383,17 @@ impl TrainConfig {
     /// Steps per environment per iteration.
     pub fn steps(&self) -> usize {
         self.horizon.unwrap_or(32)
+    }
+
+    /// Strength of the object assist for a rollout collected after
+    /// `samples` samples: `object_assist` (1 - samples /
+    /// `object_assist_samples`), at least 0; 0 when the assist is off.
+    pub fn object_assist_at(&self, samples: u64) -> f64 {
+        if self.object_assist <= 0.0 || self.object_assist_samples == 0 {
+            return 0.0;
+        }
+        let left = 1.0 - samples as f64 / self.object_assist_samples as f64;
+        self.object_assist * left.max(0.0)
     }
 
     /// The PPO configuration: preset, then overrides.
@@ -412,6 +442,13 @@ impl crate::config::Validate for TrainConfig {
         c.count("seam_blend_steps", self.seam_blend_steps as u64, 0, 1000)?;
         c.count("term_grace_steps", self.term_grace_steps as u64, 0, 100_000)?;
         c.range("seam_leave_search_s", self.seam_leave_search_s, 0.0, 60.0)?;
+        c.range("object_assist", self.object_assist, 0.0, 1.0)?;
+        if self.object_assist > 0.0 && self.object_assist_samples == 0 {
+            anyhow::bail!(
+                "{stage}.object_assist = {} needs {stage}.object_assist_samples > 0 (the samples over which it fades)",
+                self.object_assist
+            );
+        }
         c.count("num_envs", self.envs() as u64, 1, 1 << 20)?;
         c.count("horizon", self.steps() as u64, 1, 1 << 20)?;
         c.count("samples", self.samples, 1, u64::MAX)?;

@@ -219,7 +219,23 @@ pub struct EnvConfig {
     /// [`tracking_lost`] does not end an episode; falls and the object rule
     /// still do. 0 = the rule applies at every step.
     pub term_grace_steps: usize,
+    /// Strength of the object assist now (0 = off; the trainer sets it
+    /// every iteration from `train.object_assist`, fading to 0; evaluation
+    /// never uses it): over each policy step with a reference for its end,
+    /// object 0 is pulled towards that reference's object position and
+    /// velocity by [`World::pull_object`] at natural frequency
+    /// [`OBJECT_ASSIST_HZ`]. Not in the paper or the reference code: a
+    /// curriculum that lets the policy meet the dribble's later states
+    /// while its pushes are still weaker than the clip's (docs/training.md,
+    /// "The clip's own motion does not keep its ball").
+    pub object_assist: f32,
 }
+
+/// Natural frequency of the object assist's spring, Hz: at strength 1 the
+/// ball closes a gap to its reference within about a fifth of a second
+/// (critically damped), and the spring's damping over a held 1/60 s
+/// policy step, 2ω·dt = 0.84, stays below the explicit step's limit of 2.
+pub const OBJECT_ASSIST_HZ: f32 = 4.0;
 
 impl EnvConfig {
     /// Training defaults for `method` (no evaluation overrides).
@@ -251,6 +267,7 @@ impl EnvConfig {
             velocity_feed_forward_joints: FeedForwardJoints::All,
             seam_blend_steps: 0,
             term_grace_steps: 0,
+            object_assist: 0.0,
         }
     }
 }
@@ -552,6 +569,9 @@ struct Episode {
     ats_key: (usize, usize),
     /// Policy steps taken.
     t: usize,
+    /// Object-assist strength of each step (empty while every step had
+    /// none; see [`EpisodeRecord::assists`]).
+    assists: Vec<f32>,
     prev_joint_vel: Vec<f32>,
     /// Sum and count of the unmasked raw rewards (the ATS statistic).
     sum: f64,
@@ -598,6 +618,10 @@ pub struct EpisodeRecord {
     pub ats_key: (usize, usize),
     /// Actions applied so far, `t * act_dim`.
     pub actions: Vec<f32>,
+    /// Object-assist strength of each step so far
+    /// ([`EnvConfig::object_assist`]); empty while every step had none,
+    /// a missing tail reads as 0.
+    pub assists: Vec<f32>,
 }
 
 /// What the success rules (`crate::eval::rules`) see after one policy step.
@@ -955,6 +979,7 @@ impl Ctx<'_> {
             sm_weights,
             ats_key,
             t: 0,
+            assists: Vec::new(),
             prev_joint_vel: g.joint_vel.clone(),
             sum: 0.0,
             n: 0,
@@ -984,6 +1009,7 @@ impl Ctx<'_> {
         w: &mut World,
         ep: &mut Episode,
         a: &[f32],
+        assist: f32,
         he: Option<&HeRuntime>,
         record: bool,
         out: &mut [f32],
@@ -999,7 +1025,24 @@ impl Ctx<'_> {
         } else {
             w.apply_action(a);
         }
+        if assist != 0.0 || !ep.assists.is_empty() {
+            ep.assists.resize(ep.t, 0.0);
+            ep.assists.push(assist);
+        }
+        let assisted = assist > 0.0 && w.n_objects() > 0 && !no_object_class(ep.class);
+        let pull = assisted
+            .then(|| self.reference(ep, ep.t + 1))
+            .flatten()
+            .filter(|r| r.obj_pos.len() >= 3);
+        if let Some(r) = &pull {
+            let omega = 2.0 * std::f32::consts::PI * OBJECT_ASSIST_HZ;
+            let (p, v) = (&r.obj_pos, &r.obj_linvel);
+            w.pull_object(0, [p[0], p[1], p[2]], [v[0], v[1], v[2]], assist, omega);
+        }
         let contacts = w.step_with_contacts();
+        if pull.is_some() {
+            w.release_object(0);
+        }
         let s = w.get_state();
         ep.t += 1;
         let tracked = ep.step_at(ep.t).filter(|(st, _)| !st.masked);
@@ -1546,6 +1589,12 @@ impl<'a> HumanoidEnv<'a> {
         self.ats_weights = self.ats.weights(&p);
     }
 
+    /// Set the object assist's strength for the coming steps
+    /// ([`EnvConfig::object_assist`]; 0 = off).
+    pub fn set_object_assist(&mut self, strength: f32) {
+        self.ctx.cfg.object_assist = strength;
+    }
+
     /// The ATS table.
     pub fn ats(&self) -> &Ats {
         &self.ats
@@ -1692,6 +1741,7 @@ impl<'a> HumanoidEnv<'a> {
                 traj: ep.traj.clone(),
                 ats_key: ep.ats_key,
                 actions: ep.actions.clone(),
+                assists: ep.assists.clone(),
             })
             .collect()
     }
@@ -1714,6 +1764,12 @@ impl<'a> HumanoidEnv<'a> {
                 "checkpoint episode with {} action values does not fit its trajectory",
                 r.actions.len()
             );
+            ensure!(
+                r.assists.len() <= r.actions.len() / ad,
+                "checkpoint episode with {} assist strengths for {} steps",
+                r.assists.len(),
+                r.actions.len() / ad
+            );
         }
         let ctx = &self.ctx;
         let he = self.he.as_ref();
@@ -1724,8 +1780,9 @@ impl<'a> HumanoidEnv<'a> {
             .map(|r| -> Result<(Started, Vec<Vec<f32>>)> {
                 let ((mut w, mut ep, mut row), f0) = ctx.start(r.traj, r.ats_key, he)?;
                 let mut feats = vec![f0];
-                for a in r.actions.chunks_exact(ad) {
-                    let o = ctx.advance(&mut w, &mut ep, a, he, false, &mut row);
+                for (i, a) in r.actions.chunks_exact(ad).enumerate() {
+                    let assist = r.assists.get(i).copied().unwrap_or(0.0);
+                    let o = ctx.advance(&mut w, &mut ep, a, assist, he, false, &mut row);
                     feats.push(o.feature);
                 }
                 Ok(((w, ep, row), feats))
@@ -1824,13 +1881,14 @@ impl VecEnv for HumanoidEnv<'_> {
         let ctx = &self.ctx;
         let he = self.he.as_ref();
         let record = self.record;
+        let assist = ctx.cfg.object_assist;
         let mut outs: Vec<Outcome> = self
             .worlds
             .par_iter_mut()
             .zip(self.eps.par_iter_mut())
             .zip(self.obs.par_chunks_mut(od))
             .zip(actions.par_chunks_exact(ad))
-            .map(|(((w, ep), out), a)| ctx.advance(w, ep, a, he, record, out))
+            .map(|(((w, ep), out), a)| ctx.advance(w, ep, a, assist, he, record, out))
             .collect();
         let feats: Vec<(usize, Vec<f32>)> = outs
             .iter_mut()

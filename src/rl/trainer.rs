@@ -598,6 +598,10 @@ struct EpisodeMeta {
     traj: crate::augment::stf::Trajectory,
     ats_key: (usize, usize),
     actions: usize,
+    /// Object-assist strength of each step taken (`train.object_assist`;
+    /// absent while none was assisted, as in older checkpoints).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    assists: Vec<f32>,
 }
 
 fn ckpt_dir(out: &Path) -> PathBuf {
@@ -655,6 +659,7 @@ fn records_of(dir: &Path, file: &str, episodes: &[EpisodeMeta]) -> Result<Vec<Ep
             traj: e.traj.clone(),
             ats_key: e.ats_key,
             actions,
+            assists: e.assists.clone(),
         });
     }
     Ok(recs)
@@ -1168,6 +1173,12 @@ impl<'a> Trainer<'a> {
                 }
             ));
         }
+        if cfg.object_assist > 0.0 {
+            on.push(format!(
+                "object_assist={} fading to 0 over {} samples",
+                cfg.object_assist, cfg.object_assist_samples
+            ));
+        }
         if cfg.overlap_rollout {
             on.push("overlap_rollout (rollouts by the policy of one update earlier)".to_string());
         }
@@ -1228,6 +1239,10 @@ impl<'a> Trainer<'a> {
         let n = self.env.num_envs();
         let steps = self.cfg.steps();
         let critic_only = self.iteration < self.cfg.critic_warmup_iters;
+        // every rollout collected in this call, the overlapped one
+        // included, gets the assist of the samples learnt so far
+        let assist = self.cfg.object_assist_at(self.samples) as f32;
+        self.env.set_object_assist(assist);
         let t0 = Instant::now();
         let (c, up, update_s) = if self.cfg.overlap_rollout {
             self.overlapped(critic_only)?
@@ -1390,6 +1405,7 @@ impl<'a> Trainer<'a> {
                     traj: r.traj.clone(),
                     ats_key: r.ats_key,
                     actions: r.actions.len(),
+                    assists: r.assists.clone(),
                 })
                 .collect(),
             update_rng: self.update_rng.as_ref().map(RngState::of),

@@ -687,6 +687,27 @@ impl World {
         self.pw.bodies[self.objects[k]].mass()
     }
 
+    /// Hold a spring-damper force on object `k` towards position `p` (m)
+    /// and velocity `v` (m/s), world frame, over the coming physics steps
+    /// until [`World::release_object`]: F = `strength` m (ω² (p - x) +
+    /// 2ω (v - ẋ)) N, with m the object's mass and x, ẋ its centre's
+    /// position and velocity now (a critically damped spring of natural
+    /// frequency ω rad/s at `strength` 1). Training's object assist
+    /// ([`crate::rl::humanoid::EnvConfig::object_assist`]).
+    pub fn pull_object(&mut self, k: usize, p: [f32; 3], v: [f32; 3], strength: f32, omega: f32) {
+        let b = &mut self.pw.bodies[self.objects[k]];
+        let (x, xd, m) = (b.center_of_mass(), b.linvel(), b.mass());
+        let f = (omega * omega * (vector_of(&p) - x) + 2.0 * omega * (vector_of(&v) - xd))
+            * (strength * m);
+        b.reset_forces(true);
+        b.add_force(f, true);
+    }
+
+    /// Remove the force of [`World::pull_object`] from object `k`.
+    pub fn release_object(&mut self, k: usize) {
+        self.pw.bodies[self.objects[k]].reset_forces(false);
+    }
+
     /// Set the motor targets: one exp-map triple per joint.
     pub fn set_joint_targets(&mut self, targets: &[f32]) {
         assert_eq!(
