@@ -649,6 +649,13 @@ pub struct RecordedStep {
     pub reference: Option<(u32, u32)>,
 }
 
+/// What drives one environment's step: the policy's action (`act_dim`
+/// values) and the object assist's strength ([`EnvConfig::object_assist`]).
+struct Control<'a> {
+    action: &'a [f32],
+    assist: f32,
+}
+
 /// What one environment reports after a step.
 struct Outcome {
     reward: Option<f64>,
@@ -1008,12 +1015,12 @@ impl Ctx<'_> {
         &self,
         w: &mut World,
         ep: &mut Episode,
-        a: &[f32],
-        assist: f32,
+        control: Control<'_>,
         he: Option<&HeRuntime>,
         record: bool,
         out: &mut [f32],
     ) -> Outcome {
+        let Control { action: a, assist } = control;
         ep.actions.extend_from_slice(a);
         if self.cfg.residual_action {
             let total: Vec<f32> = a.iter().zip(&ep.ff).map(|(a, f)| a + f).collect();
@@ -1782,7 +1789,8 @@ impl<'a> HumanoidEnv<'a> {
                 let mut feats = vec![f0];
                 for (i, a) in r.actions.chunks_exact(ad).enumerate() {
                     let assist = r.assists.get(i).copied().unwrap_or(0.0);
-                    let o = ctx.advance(&mut w, &mut ep, a, assist, he, false, &mut row);
+                    let c = Control { action: a, assist };
+                    let o = ctx.advance(&mut w, &mut ep, c, he, false, &mut row);
                     feats.push(o.feature);
                 }
                 Ok(((w, ep, row), feats))
@@ -1888,7 +1896,9 @@ impl VecEnv for HumanoidEnv<'_> {
             .zip(self.eps.par_iter_mut())
             .zip(self.obs.par_chunks_mut(od))
             .zip(actions.par_chunks_exact(ad))
-            .map(|(((w, ep), out), a)| ctx.advance(w, ep, a, assist, he, record, out))
+            .map(|(((w, ep), out), action)| {
+                ctx.advance(w, ep, Control { action, assist }, he, record, out)
+            })
             .collect();
         let feats: Vec<(usize, Vec<f32>)> = outs
             .iter_mut()
