@@ -654,7 +654,6 @@ fn the_clips_own_push_falls_short_under_finer_steps_stiffer_drives_and_a_lighter
             population: 1,
             elites: 1,
             iterations: 0,
-            physics: p.clone(),
             ..PushConfig::default()
         };
         let opts = p.options(lib.clips[c].fps as f64);

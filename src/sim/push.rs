@@ -313,7 +313,8 @@ fn search(
 
 /// [`PushFit`] of every push window of clip `clip` (objects `objects`,
 /// object 0 a ball), searched with `cfg` and a generator seeded by `seed`,
-/// the clip and the window.
+/// the clip and the window. `model`, `objects` and `opts` are the physics
+/// as given: `cfg.physics` is applied by [`fit_pushes`], not here.
 ///
 /// # Errors
 /// A world that cannot be built or a frame it refuses.
