@@ -97,6 +97,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.object_assist=0.5",
             "--set",
             "train.object_assist_samples=3840",
+            "--set",
+            "train.object_assist_band=0.2",
         ],
     );
 }
@@ -1001,12 +1003,14 @@ fn the_object_assist_pulls_the_ball_along_its_reference_and_fades_out() {
     let n = 4;
     // mean distance of the ball to its reference's over 40 steps, m, and
     // the mean SM object factor
-    let run_env = |assist: f32| -> (f64, f64) {
+    // mean and largest distance of the ball to its reference's over 40
+    // steps, m, and the mean SM object factor
+    let run_env = |cfg: &TrainConfig, assist: f32| -> (f64, f64, f64) {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let mut env = environment(&s, &base, None, n, &mut rng).unwrap();
+        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
         env.set_object_assist(assist);
         let zeros = vec![0f32; n * env.act_dim()];
-        let (mut sum, mut count) = (0.0, 0);
+        let (mut sum, mut most, mut count) = (0.0, 0f64, 0);
         for _ in 0..40 {
             env.step(&zeros, &mut rng).unwrap();
             for e in 0..n {
@@ -1014,16 +1018,31 @@ fn the_object_assist_pulls_the_ball_along_its_reference_and_fades_out() {
                 let b = env.probes()[e].obj[0];
                 let d: f32 = (0..3).map(|k| (b[k] - r.obj_pos[k]).powi(2)).sum();
                 sum += d.sqrt() as f64;
+                most = most.max(d.sqrt() as f64);
                 count += 1;
             }
         }
-        (sum / count as f64, env.take_stats().mean_sm_factor(1))
+        let obj = env.take_stats().mean_sm_factor(1);
+        (sum / count as f64, most, obj)
     };
-    let (d0, obj0) = run_env(0.0);
-    let (d1, obj1) = run_env(1.0);
+    let (d0, most0, obj0) = run_env(&base, 0.0);
+    let (d1, most1, obj1) = run_env(&base, 1.0);
     eprintln!("ball to reference over 40 steps: {d0:.3} m without assist, {d1:.3} m with; r_o {obj0:.3} / {obj1:.3}");
     assert!(d1 < 0.5 * d0, "{d1} against {d0}");
     assert!(obj1 > obj0, "r_o {obj1} against {obj0}");
+    // a dead band lets the ball stray inside it and catches it beyond:
+    // farther from its reference on average than under the full spring,
+    // and never as far as without the assist
+    let banded = TrainConfig {
+        object_assist_band: 0.15,
+        ..base.clone()
+    };
+    let (d2, most2, obj2) = run_env(&banded, 1.0);
+    eprintln!(
+        "with a 0.15 m dead band: {d2:.3} m, largest {most2:.3} m (none {most0:.3}, full {most1:.3}); r_o {obj2:.3}"
+    );
+    assert!(d2 > d1 && d2 < d0, "{d2} against {d1} and {d0}");
+    assert!(most2 < 0.7 * most0, "{most2} against {most0}");
 
     // the strength fades linearly with the samples learnt, to 0, and is
     // off unless both settings are given
@@ -1057,4 +1076,11 @@ fn the_object_assist_pulls_the_ball_along_its_reference_and_fades_out() {
         ],
     ));
     assert!(err.contains("train.object_assist"), "{err}");
+    let err = fails(&train_args(
+        from,
+        out.to_str().unwrap(),
+        &["--set", "train.object_assist_band=-0.1"],
+    ));
+    assert!(err.contains("train.object_assist_band"), "{err}");
+    assert!(!out.exists(), "no output for refused settings");
 }

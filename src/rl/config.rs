@@ -247,6 +247,14 @@ pub struct TrainConfig {
     /// `object_assist` is on). Not written when 0.
     #[serde(skip_serializing_if = "is_zero_u64")]
     pub object_assist_samples: u64,
+    /// Dead band of the object assist, m (0 = the spring always acts):
+    /// while the ball is within this distance of the reference's ball the
+    /// assist leaves it alone, so a weak push still costs the object terms
+    /// of the reward; beyond it the ball is pulled back to the band's edge
+    /// ([`crate::rl::humanoid::EnvConfig::object_assist_band`]). Not
+    /// written when 0.
+    #[serde(skip_serializing_if = "is_zero_f64")]
+    pub object_assist_band: f64,
 }
 
 fn is_zero_u64(x: &u64) -> bool {
@@ -367,6 +375,7 @@ impl Default for TrainConfig {
             overlap_rollout: false,
             object_assist: 0.0,
             object_assist_samples: 0,
+            object_assist_band: 0.0,
         }
     }
 }
@@ -443,6 +452,7 @@ impl crate::config::Validate for TrainConfig {
         c.count("term_grace_steps", self.term_grace_steps as u64, 0, 100_000)?;
         c.range("seam_leave_search_s", self.seam_leave_search_s, 0.0, 60.0)?;
         c.range("object_assist", self.object_assist, 0.0, 1.0)?;
+        c.range("object_assist_band", self.object_assist_band, 0.0, 10.0)?;
         if self.object_assist > 0.0 && self.object_assist_samples == 0 {
             anyhow::bail!(
                 "{stage}.object_assist = {} needs {stage}.object_assist_samples > 0 (the samples over which it fades)",

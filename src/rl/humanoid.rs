@@ -74,7 +74,7 @@ use crate::nn::he::{self, HistoryEncoder};
 use crate::nn::he_kernel::{EncoderCache, EncoderKernel};
 use crate::reward::{self, DatasetKind, RewardOptions, Weights};
 use crate::sim::mjcf::Model;
-use crate::sim::world::{rotation_of, vector_of};
+use crate::sim::world::{rotation_of, vector_of, Spring};
 use crate::sim::{ContactReport, ObjectSpec, SimOptions, World};
 use anyhow::{bail, ensure, Context, Result};
 use rand_chacha::ChaCha8Rng;
@@ -229,6 +229,12 @@ pub struct EnvConfig {
     /// while its pushes are still weaker than the clip's (docs/training.md,
     /// "The clip's own motion does not keep its ball").
     pub object_assist: f32,
+    /// Dead band of the object assist, m (0 = none): within this distance
+    /// of the reference's object position no force acts; beyond it the
+    /// spring pulls towards the nearest point of the band's sphere
+    /// ([`World::pull_object`]), so the assist only keeps the ball from
+    /// being lost and the reward still scores the push inside the band.
+    pub object_assist_band: f32,
 }
 
 /// Natural frequency of the object assist's spring, Hz: at strength 1 the
@@ -268,6 +274,7 @@ impl EnvConfig {
             seam_blend_steps: 0,
             term_grace_steps: 0,
             object_assist: 0.0,
+            object_assist_band: 0.0,
         }
     }
 }
@@ -1037,17 +1044,22 @@ impl Ctx<'_> {
             ep.assists.push(assist);
         }
         let assisted = assist > 0.0 && w.n_objects() > 0 && !no_object_class(ep.class);
-        let pull = assisted
+        let pulled = assisted
             .then(|| self.reference(ep, ep.t + 1))
             .flatten()
-            .filter(|r| r.obj_pos.len() >= 3);
-        if let Some(r) = &pull {
-            let omega = 2.0 * std::f32::consts::PI * OBJECT_ASSIST_HZ;
-            let (p, v) = (&r.obj_pos, &r.obj_linvel);
-            w.pull_object(0, [p[0], p[1], p[2]], [v[0], v[1], v[2]], assist, omega);
-        }
+            .filter(|r| r.obj_pos.len() >= 3)
+            .is_some_and(|r| {
+                let omega = 2.0 * std::f32::consts::PI * OBJECT_ASSIST_HZ;
+                let (p, v) = (&r.obj_pos, &r.obj_linvel);
+                let spring = Spring {
+                    strength: assist,
+                    omega,
+                    band: self.cfg.object_assist_band,
+                };
+                w.pull_object(0, [p[0], p[1], p[2]], [v[0], v[1], v[2]], spring)
+            });
         let contacts = w.step_with_contacts();
-        if pull.is_some() {
+        if pulled {
             w.release_object(0);
         }
         let s = w.get_state();

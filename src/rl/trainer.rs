@@ -253,6 +253,7 @@ pub fn environment<'a>(
         velocity_feed_forward_joints: cfg.velocity_feed_forward_joints,
         seam_blend_steps: cfg.seam_blend_steps,
         term_grace_steps: cfg.term_grace_steps,
+        object_assist_band: cfg.object_assist_band as f32,
         nsi_follow: cfg.nsi && !cfg.stf,
         ats: cfg.ats,
         ats_params: s.ats_params,
@@ -1175,8 +1176,14 @@ impl<'a> Trainer<'a> {
         }
         if cfg.object_assist > 0.0 {
             on.push(format!(
-                "object_assist={} fading to 0 over {} samples",
-                cfg.object_assist, cfg.object_assist_samples
+                "object_assist={} fading to 0 over {} samples{}",
+                cfg.object_assist,
+                cfg.object_assist_samples,
+                if cfg.object_assist_band > 0.0 {
+                    format!(", dead band {} m", cfg.object_assist_band)
+                } else {
+                    String::new()
+                }
             ));
         }
         if cfg.overlap_rollout {

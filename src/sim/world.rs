@@ -335,6 +335,18 @@ struct Skeleton {
     hand: Vec<bool>,
 }
 
+/// The object assist's spring ([`World::pull_object`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Spring {
+    /// Strength s, a fraction of the critically damped spring (0..=1).
+    pub strength: f32,
+    /// Natural frequency ω, rad/s.
+    pub omega: f32,
+    /// Dead band b, m: no force within this distance of the target
+    /// position (0 = none).
+    pub band: f32,
+}
+
 /// One world.
 pub struct World {
     pw: PhysicsWorld,
@@ -689,18 +701,34 @@ impl World {
 
     /// Hold a spring-damper force on object `k` towards position `p` (m)
     /// and velocity `v` (m/s), world frame, over the coming physics steps
-    /// until [`World::release_object`]: F = `strength` m (ω² (p - x) +
-    /// 2ω (v - ẋ)) N, with m the object's mass and x, ẋ its centre's
-    /// position and velocity now (a critically damped spring of natural
-    /// frequency ω rad/s at `strength` 1). Training's object assist
+    /// until [`World::release_object`]: F = s m (ω² (p' - x) + 2ω (v - ẋ))
+    /// N, with s = `spring.strength`, ω = `spring.omega` rad/s, m the
+    /// object's mass and x, ẋ its centre's position and velocity now (a
+    /// critically damped spring of natural frequency ω at strength 1).
+    /// p' = p without a dead band; with `spring.band` = b > 0 m no force
+    /// acts while |p - x| <= b, and beyond it p' is the point of the
+    /// band's sphere about p nearest to x. Returns whether a force was
+    /// set. Training's object assist
     /// ([`crate::rl::humanoid::EnvConfig::object_assist`]).
-    pub fn pull_object(&mut self, k: usize, p: [f32; 3], v: [f32; 3], strength: f32, omega: f32) {
+    pub fn pull_object(&mut self, k: usize, p: [f32; 3], v: [f32; 3], spring: Spring) -> bool {
         let b = &mut self.pw.bodies[self.objects[k]];
         let (x, xd, m) = (b.center_of_mass(), b.linvel(), b.mass());
-        let f = (omega * omega * (vector_of(&p) - x) + 2.0 * omega * (vector_of(&v) - xd))
-            * (strength * m);
+        let gap = vector_of(&p) - x;
+        let dist = gap.length();
+        if spring.band > 0.0 && dist <= spring.band {
+            return false;
+        }
+        let reach = if spring.band > 0.0 {
+            gap * (1.0 - spring.band / dist)
+        } else {
+            gap
+        };
+        let omega = spring.omega;
+        let f =
+            (omega * omega * reach + 2.0 * omega * (vector_of(&v) - xd)) * (spring.strength * m);
         b.reset_forces(true);
         b.add_force(f, true);
+        true
     }
 
     /// Remove the force of [`World::pull_object`] from object `k`.
