@@ -104,6 +104,23 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
 }
 
 #[test]
+fn a_run_with_the_push_warm_start_killed_and_resumed_matches_too() {
+    // the push search runs before the warm start, with the run's seed, on
+    // DF's push windows; its offsets live on in the fitted weights
+    killed_and_resumed_matches_uninterrupted(
+        false,
+        &[
+            "--set",
+            "train.skills=[\"run\"]",
+            "--set",
+            "train.residual_action=true",
+            "--set",
+            "train.warm_start_push=arms",
+        ],
+    );
+}
+
+#[test]
 fn a_run_with_the_history_encoder_killed_and_resumed_matches_too() {
     // Each environment's encoder keeps the activations of its last window
     // (src/nn/he_kernel.rs); the replayed episodes after a resume start
@@ -897,7 +914,7 @@ fn the_warm_start_fits_the_next_reference_pose() {
     let (_dir, s) = ballplay_setup(&cfg);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
     let env = environment(&s, &cfg, None, 2, &mut rng).unwrap();
-    let (obs, targets) = env.warm_start_data(&s.clips, 1, &mut rng).unwrap();
+    let (obs, targets) = env.warm_start_data(&s.clips, 1, &[], &mut rng).unwrap();
     let rows = obs.len() / env.obs_dim();
     assert_eq!(targets.len(), rows * env.act_dim());
     // two copies (reference + one neighbour) of each usable frame
@@ -934,6 +951,100 @@ fn the_warm_start_fits_the_next_reference_pose() {
         .unwrap();
     eprintln!("warm start: action mse {before:.4} -> {after:.4}");
     assert!(after < 0.5 * before, "{before} -> {after}");
+}
+
+#[test]
+fn the_push_warm_start_fits_the_searched_offsets_inside_push_windows() {
+    use skillaug::sim::push::{push_joints, push_offsets, PushConfig};
+    let cfg = TrainConfig {
+        skills: vec!["run".into()],
+        residual_action: true,
+        ..TrainConfig::default()
+    };
+    let (_dir, s) = ballplay_setup(&cfg);
+    // a short search: 4 rounds of 16 draws per window
+    let search = PushConfig {
+        population: 16,
+        elites: 4,
+        iterations: 4,
+        ..PushConfig::default()
+    };
+    let pushes = push_offsets(
+        &s.lib, &s.clips, &s.model, &s.objects, &s.sim, &search, false, 0,
+    )
+    .unwrap();
+    assert!(!pushes.is_empty(), "DF has push windows");
+    let arms = push_joints(&s.model, false);
+    let mut harder = 0;
+    for p in &pushes {
+        assert!(s.clips.contains(&p.clip));
+        assert!(
+            p.found.cost <= p.own.cost,
+            "never worse than the clip's own"
+        );
+        assert_eq!(p.offset.len(), (s.model.bodies.len() - 1) * 3);
+        for (j, o) in p.offset.chunks_exact(3).enumerate() {
+            if !arms.contains(&j) {
+                assert_eq!(o, [0.0; 3], "joint {j} is not an arm joint");
+            }
+        }
+        if p.found.vel[2] < p.own.vel[2] - 0.1 {
+            harder += 1;
+        }
+    }
+    assert!(harder >= 1, "no window pushed harder: {pushes:?}");
+
+    // one row per usable frame (no perturbed copies): zero residual
+    // outside the windows, offset / pi inside
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let env = environment(&s, &cfg, None, 2, &mut rng).unwrap();
+    let (obs, targets) = env.warm_start_data(&s.clips, 0, &pushes, &mut rng).unwrap();
+    let ad = env.act_dim();
+    let mut row = 0;
+    let mut inside = 0;
+    for &c in &s.clips {
+        let allowed = skillaug::augment::ats::start_frames(&s.lib.frames[c]);
+        for f in (0..allowed.len()).filter(|f| allowed[*f]) {
+            if s.lib.state(c, f).is_none() || s.lib.state(c, f + 1).is_none() {
+                continue;
+            }
+            let t = &targets[row * ad..(row + 1) * ad];
+            match pushes
+                .iter()
+                .find(|p| p.clip == c && (p.window.start..p.window.release).contains(&f))
+            {
+                Some(p) => {
+                    inside += 1;
+                    for (t, o) in t.iter().zip(&p.offset) {
+                        let want = (o / std::f32::consts::PI).clamp(-1.0, 1.0);
+                        assert!(
+                            (t - want).abs() < 1e-6,
+                            "clip {c} frame {f}: {t} against {want}"
+                        );
+                    }
+                }
+                None => assert!(t.iter().all(|x| *x == 0.0), "clip {c} frame {f}"),
+            }
+            row += 1;
+        }
+    }
+    assert_eq!(row * env.obs_dim(), obs.len());
+    let windows: usize = pushes
+        .iter()
+        .map(|p| p.window.release - p.window.start)
+        .sum();
+    assert_eq!(inside, windows);
+
+    // an unknown joint group is refused, naming the key
+    let (_dir, run) = ingested("ballplay");
+    let out = run.parent().unwrap().join("t");
+    let err = fails(&train_args(
+        run.to_str().unwrap(),
+        out.to_str().unwrap(),
+        &["--set", "train.warm_start_push=hands"],
+    ));
+    assert!(err.contains("warm_start_push"), "{err}");
+    assert!(!out.exists(), "no output for refused settings");
 }
 
 #[test]

@@ -148,6 +148,16 @@ pub struct TrainConfig {
     pub warm_start_copies: usize,
     /// Adam learning rate of the warm start.
     pub warm_start_lr: f64,
+    /// Push targets for the warm start: `"off"` (the next frame's joint
+    /// rotations everywhere), or `"arms"` / `"upper"`: inside every push
+    /// window of the training clips the target adds the offset that
+    /// `skillaug check-ball`'s push search finds on that joint group
+    /// ([`crate::sim::push::push_offsets`], default search settings, the
+    /// run's seed), so the policy starts out pushing the ball as hard as
+    /// PD targets near the clip's can. Not in the paper or the reference
+    /// code. Not written when off.
+    #[serde(skip_serializing_if = "is_push_off")]
+    pub warm_start_push: WarmStartPush,
     /// First iterations that update only the critic (0 = none).
     pub critic_warmup_iters: u64,
     /// The reference code's hidden smoothness factor in the SM reward.
@@ -273,6 +283,24 @@ fn is_zero(x: &f32) -> bool {
     *x == 0.0
 }
 
+/// Which push offsets the warm start fits (`train.warm_start_push`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WarmStartPush {
+    /// None: the warm start fits the next reference frame everywhere.
+    #[default]
+    Off,
+    /// Offsets on the shoulders, elbows and wrists
+    /// ([`crate::sim::push::push_joints`]).
+    Arms,
+    /// Offsets on the arms, torso, spine, chest, thorax and neck.
+    Upper,
+}
+
+fn is_push_off(p: &WarmStartPush) -> bool {
+    *p == WarmStartPush::Off
+}
+
 fn is_all_joints(j: &FeedForwardJoints) -> bool {
     *j == FeedForwardJoints::All
 }
@@ -357,6 +385,7 @@ impl Default for TrainConfig {
             warm_start_epochs: 50,
             warm_start_copies: 4,
             warm_start_lr: 1e-3,
+            warm_start_push: WarmStartPush::Off,
             critic_warmup_iters: 5,
             smoothness: false,
             ats_update: Update::Mean,

@@ -1495,11 +1495,16 @@ impl<'a> HumanoidEnv<'a> {
     /// simulator maps a to π a, [`World::apply_action`]; extrapolated by
     /// [`EnvConfig::feed_forward_lead`]), or zero with
     /// [`EnvConfig::residual_action`] (the feed-forward part already holds
-    /// ŝ_{f+1}). Returns (`N * obs_dim` observations, `N * act_dim` targets).
+    /// ŝ_{f+1}). A frame inside a window of `pushes` (frames
+    /// `start..release` of its clip) adds that window's offset, rad, to its
+    /// PD targets (`train.warm_start_push`; with residual actions the
+    /// target is the offset / π, clamped to [-1, 1]). Returns (`N *
+    /// obs_dim` observations, `N * act_dim` targets).
     pub fn warm_start_data(
         &self,
         clips: &[usize],
         copies: usize,
+        pushes: &[crate::sim::push::PushOffset],
         rng: &mut ChaCha8Rng,
     ) -> Result<(Vec<f32>, Vec<f32>)> {
         use crate::augment::stf::{perturb, refresh_bodies};
@@ -1516,11 +1521,22 @@ impl<'a> HumanoidEnv<'a> {
                 };
                 // With residual actions the next frame is the feed-forward
                 // part, so the policy's own part is zero.
+                let push = pushes
+                    .iter()
+                    .find(|p| p.clip == c && (p.window.start..p.window.release).contains(&f))
+                    .map(|p| p.offset.as_slice());
                 let target = if self.ctx.cfg.residual_action {
-                    vec![0.0; next.joint_rot.len()]
+                    match push {
+                        Some(o) => feed_forward(o),
+                        None => vec![0.0; next.joint_rot.len()],
+                    }
                 } else {
                     let lead = self.ctx.cfg.feed_forward_lead;
-                    feed_forward(&lead_target(&s.joint_rot, &next.joint_rot, lead))
+                    let mut t = lead_target(&s.joint_rot, &next.joint_rot, lead);
+                    if let Some(o) = push {
+                        t.iter_mut().zip(o).for_each(|(t, o)| *t += o);
+                    }
+                    feed_forward(&t)
                 };
                 for k in 0..=copies {
                     let start = if k == 0 {

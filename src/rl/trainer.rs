@@ -16,7 +16,7 @@
 //! the same number of ranks only.
 
 use super::comm::{fingerprint, Comm};
-use super::config::{PolicyMeta, TrainConfig};
+use super::config::{PolicyMeta, TrainConfig, WarmStartPush};
 use super::humanoid::{
     EnvConfig, EnvParts, EnvStats, EpisodeRecord, FeedForwardJoints, HeRuntime, HumanoidEnv,
 };
@@ -780,6 +780,9 @@ fn rng_of(part: &RankState) -> Result<ChaCha8Rng> {
 /// What the behaviour cloning before PPO did ([`Agent::fit_mean`]).
 #[derive(Clone, Debug, Default)]
 pub struct WarmStart {
+    /// The push windows whose frames fitted an offset
+    /// (`train.warm_start_push`; empty when off).
+    pub pushes: Vec<crate::sim::push::PushOffset>,
     /// States fitted (this rank's).
     pub states: usize,
     /// Mean squared action error before and after.
@@ -889,7 +892,22 @@ impl<'a> Trainer<'a> {
         let mut warm_start = None;
         if cfg.warm_start_epochs > 0 {
             let t = Instant::now();
-            let (obs, targets) = env.warm_start_data(&s.clips, cfg.warm_start_copies, &mut rng)?;
+            let pushes = match cfg.warm_start_push {
+                WarmStartPush::Off => Vec::new(),
+                group => crate::sim::push::push_offsets(
+                    &s.lib,
+                    &s.clips,
+                    &s.model,
+                    &s.objects,
+                    &s.sim,
+                    &crate::sim::push::PushConfig::default(),
+                    group == WarmStartPush::Upper,
+                    seed,
+                )
+                .context("train.warm_start_push")?,
+            };
+            let (obs, targets) =
+                env.warm_start_data(&s.clips, cfg.warm_start_copies, &pushes, &mut rng)?;
             let mse = agent.fit_mean(
                 &obs,
                 &targets,
@@ -901,6 +919,7 @@ impl<'a> Trainer<'a> {
                 comm,
             )?;
             warm_start = Some(WarmStart {
+                pushes,
                 states: obs.len() / env.obs_dim(),
                 mse,
                 secs: t.elapsed().as_secs_f64(),
@@ -1183,6 +1202,21 @@ impl<'a> Trainer<'a> {
                     format!(", dead band {} m", cfg.object_assist_band)
                 } else {
                     String::new()
+                }
+            ));
+        }
+        if cfg.warm_start_push != WarmStartPush::Off {
+            on.push(format!(
+                "warm_start_push={} (push windows' searched offsets in the warm start{})",
+                if cfg.warm_start_push == WarmStartPush::Upper {
+                    "upper"
+                } else {
+                    "arms"
+                },
+                if cfg.warm_start_epochs == 0 {
+                    "; no effect: warm start off"
+                } else {
+                    ""
                 }
             ));
         }

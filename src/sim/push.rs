@@ -227,6 +227,10 @@ pub struct PushSearch {
     pub max_offset: f64,
     /// Root mean square of the offset over its axes, rad.
     pub rms_offset: f64,
+    /// The offset, rad: three exp-map components per searched joint, in
+    /// the order of [`push_joints`] (all zero when no draw beat the
+    /// clip's own targets).
+    pub offset: Vec<f32>,
 }
 
 /// One push window of one clip: the clip's ball, the PD replay of its own
@@ -258,6 +262,7 @@ fn summary(o: &Outcome, offset: &[f32]) -> PushSearch {
         cost: o.cost,
         max_offset: offset.iter().fold(0f64, |m, x| m.max(x.abs() as f64)),
         rms_offset: (offset.iter().map(|x| (*x as f64).powi(2)).sum::<f64>() / n).sqrt(),
+        offset: offset.to_vec(),
     }
 }
 
@@ -333,8 +338,7 @@ pub fn fit_pushes_of_clip(
     let (arms, upper) = (push_joints(model, false), push_joints(model, true));
     let mut out = Vec::new();
     for w in push_windows(f, &hand, cfg.hand_radius, cfg.min_frames) {
-        let mut rng =
-            ChaCha8Rng::seed_from_u64(seed ^ ((clip as u64) << 32) ^ ((w.start as u64) << 16));
+        let mut rng = window_rng(seed, clip, w);
         let mut fit = || -> Result<PushFit> {
             let r = f.state(w.release).context("release frame not valid")?;
             let zero = vec![0f32; arms.len() * 3];
@@ -351,6 +355,91 @@ pub fn fit_pushes_of_clip(
             })
         };
         out.push(fit().with_context(|| format!("frames {}..{}", w.start, w.release))?);
+    }
+    Ok(out)
+}
+
+/// The search's generator for window `w` of clip `clip`.
+fn window_rng(seed: u64, clip: usize, w: PushWindow) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed ^ ((clip as u64) << 32) ^ ((w.start as u64) << 16))
+}
+
+/// A push window's best offset, for the warm start
+/// (`train.warm_start_push`, [`push_offsets`]).
+#[derive(Clone, Debug)]
+pub struct PushOffset {
+    /// Clip index in the library.
+    pub clip: usize,
+    /// The window: its frames `start..release` get the offset.
+    pub window: PushWindow,
+    /// Offset of every joint, rad, `[J*3]` exp-map components (zero off
+    /// the searched joints).
+    pub offset: Vec<f32>,
+    /// The ball at the release under the clip's own targets (zero offset).
+    pub own: PushSearch,
+    /// The ball at the release under the offset.
+    pub found: PushSearch,
+    /// The clip's ball velocity at the release, m/s.
+    pub vel_ref: [f64; 3],
+}
+
+/// Best offsets of every push window of `clips` (object 0 a ball;
+/// nothing for clips without one), searched as [`fit_pushes_of_clip`] does
+/// over the arms or, with `upper`, the whole upper body, and spread onto
+/// all `J` joints. The arms' offsets are those of `skillaug check-ball`'s
+/// table (same generator); the upper body's are drawn from the start of
+/// the window's generator, not after the arms' search as there.
+///
+/// # Errors
+/// A world that cannot be built or a frame it refuses, naming the clip
+/// and the window.
+pub fn push_offsets(
+    lib: &MotionLib,
+    clips: &[usize],
+    model: &Model,
+    objects: &[ObjectSpec],
+    opts: &SimOptions,
+    cfg: &PushConfig,
+    upper: bool,
+    seed: u64,
+) -> Result<Vec<PushOffset>> {
+    if objects.first().is_none_or(|o| o.name != "ball") {
+        return Ok(Vec::new());
+    }
+    let hand = hand_bodies(model);
+    let make = || World::new(model, objects, opts);
+    let joints = push_joints(model, upper);
+    let n_joints = model.bodies.len() - 1;
+    let mut out = Vec::new();
+    for &clip in clips {
+        let f = &lib.frames[clip];
+        for w in push_windows(f, &hand, cfg.hand_radius, cfg.min_frames) {
+            let mut rng = window_rng(seed, clip, w);
+            let mut found = || -> Result<PushOffset> {
+                let r = f.state(w.release).context("release frame not valid")?;
+                let zero = vec![0f32; joints.len() * 3];
+                let replayed = replay(&mut make()?, f, w, &joints, &zero, false)?;
+                let found = search(&make, f, w, &joints, cfg, &replayed, &mut rng)?;
+                let mut offset = vec![0f32; n_joints * 3];
+                for (k, &j) in joints.iter().enumerate() {
+                    offset[j * 3..j * 3 + 3].copy_from_slice(&found.offset[k * 3..k * 3 + 3]);
+                }
+                Ok(PushOffset {
+                    clip,
+                    window: w,
+                    offset,
+                    own: summary(&replayed, &zero),
+                    found,
+                    vel_ref: std::array::from_fn(|k| r.obj_linvel[k] as f64),
+                })
+            };
+            out.push(found().with_context(|| {
+                format!(
+                    "push search of clip {} ({}), frames {}..{}",
+                    clip, lib.clips[clip].name, w.start, w.release
+                )
+            })?);
+        }
     }
     Ok(out)
 }

@@ -91,6 +91,19 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
                 "train: warm start on {} states, {} epochs: action error (mse) {:.4} -> {:.4} ({:.1} s)",
                 w.states, cfg.warm_start_epochs, w.mse.0, w.mse.1, w.secs
             );
+            for p in &w.pushes {
+                println!(
+                    "train: push window {} frames {}..{}: ball v_z at release {:.2} m/s with the clip's own targets, {:.2} with the offset (RMS {:.2} rad, largest {:.2}), clip {:.2}",
+                    s.lib.clips[p.clip].name,
+                    p.window.start,
+                    p.window.release,
+                    p.own.vel[2],
+                    p.found.vel[2],
+                    p.found.rms_offset,
+                    p.found.max_offset,
+                    p.vel_ref[2]
+                );
+            }
         }
         println!("{}", t.describe(sw.resume));
     }
