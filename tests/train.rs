@@ -955,7 +955,7 @@ fn the_warm_start_fits_the_next_reference_pose() {
 
 #[test]
 fn the_push_warm_start_fits_the_searched_offsets_inside_push_windows() {
-    use skillaug::sim::push::{push_joints, push_offsets, PushConfig};
+    use skillaug::sim::push::{push_joints, push_offsets, PushConfig, Scene};
     let cfg = TrainConfig {
         skills: vec!["run".into()],
         residual_action: true,
@@ -969,10 +969,12 @@ fn the_push_warm_start_fits_the_searched_offsets_inside_push_windows() {
         iterations: 4,
         ..PushConfig::default()
     };
-    let pushes = push_offsets(
-        &s.lib, &s.clips, &s.model, &s.objects, &s.sim, &search, false, 0,
-    )
-    .unwrap();
+    let scene = Scene {
+        model: &s.model,
+        objects: &s.objects,
+        opts: &s.sim,
+    };
+    let pushes = push_offsets(&s.lib, &s.clips, scene, &search, false, 0).unwrap();
     assert!(!pushes.is_empty(), "DF has push windows");
     let arms = push_joints(&s.model, false);
     let mut harder = 0;

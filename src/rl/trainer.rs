@@ -897,9 +897,11 @@ impl<'a> Trainer<'a> {
                 group => crate::sim::push::push_offsets(
                     &s.lib,
                     &s.clips,
-                    &s.model,
-                    &s.objects,
-                    &s.sim,
+                    crate::sim::push::Scene {
+                        model: &s.model,
+                        objects: &s.objects,
+                        opts: &s.sim,
+                    },
                     &crate::sim::push::PushConfig::default(),
                     group == WarmStartPush::Upper,
                     seed,

@@ -383,6 +383,18 @@ pub struct PushOffset {
     pub vel_ref: [f64; 3],
 }
 
+/// The physics a push search replays in: the humanoid, the objects
+/// (object 0 the ball) and the simulation options.
+#[derive(Clone, Copy)]
+pub struct Scene<'a> {
+    /// The humanoid.
+    pub model: &'a Model,
+    /// The objects.
+    pub objects: &'a [ObjectSpec],
+    /// Simulation options.
+    pub opts: &'a SimOptions,
+}
+
 /// Best offsets of every push window of `clips` (object 0 a ball;
 /// nothing for clips without one), searched as [`fit_pushes_of_clip`] does
 /// over the arms or, with `upper`, the whole upper body, and spread onto
@@ -396,13 +408,16 @@ pub struct PushOffset {
 pub fn push_offsets(
     lib: &MotionLib,
     clips: &[usize],
-    model: &Model,
-    objects: &[ObjectSpec],
-    opts: &SimOptions,
+    scene: Scene<'_>,
     cfg: &PushConfig,
     upper: bool,
     seed: u64,
 ) -> Result<Vec<PushOffset>> {
+    let Scene {
+        model,
+        objects,
+        opts,
+    } = scene;
     if objects.first().is_none_or(|o| o.name != "ball") {
         return Ok(Vec::new());
     }
