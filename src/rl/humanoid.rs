@@ -1519,12 +1519,12 @@ impl<'a> HumanoidEnv<'a> {
                 let (Some(s), Some(next)) = (lib.state(c, f), lib.state(c, f + 1)) else {
                     continue;
                 };
-                // With residual actions the next frame is the feed-forward
-                // part, so the policy's own part is zero.
                 let push = pushes
                     .iter()
                     .find(|p| p.clip == c && (p.window.start..p.window.release).contains(&f))
                     .map(|p| p.offset.as_slice());
+                // With residual actions the next frame is the feed-forward
+                // part, so the policy's own part is zero, or a push offset.
                 let target = if self.ctx.cfg.residual_action {
                     match push {
                         Some(o) => feed_forward(o),
