@@ -10,7 +10,8 @@ for at least MIN_STANDING_STEPS steps (default 300), it prints the ball's
 highest point in each 50-step window (m; the ball's radius, 0.12 m, is the
 height of a ball at rest) and the first step from which the ball lay at
 rest (below 0.15 m) for 30 steps, then the trial's success and mean SM
-reward per step. Object 0 is the ball.
+reward per step. Object 0 is the ball. Needs pyarrow and numpy (what
+`.ci/run` installs), not pandas.
 """
 import sys
 
@@ -21,22 +22,30 @@ import pyarrow.parquet as pq
 def main():
     ev = sys.argv[1]
     min_standing = int(sys.argv[2]) if len(sys.argv) > 2 else 300
-    roll = pq.read_table(f"{ev}/eval_rollouts.parquet").to_pandas()
-    roll = roll[roll.metric == "sr"]
-    trials = pq.read_table(f"{ev}/eval_trials.parquet").to_pandas()
-    trials = trials[trials.metric == "sr"]
-    recorded = set(roll.trial.unique())
-    keep = trials[
-        trials.trial.isin(recorded)
-        & (trials.down_step.isna() | (trials.down_step > min_standing))
+    # pyarrow and numpy only (no pandas): columns as Python lists
+    roll = pq.read_table(
+        f"{ev}/eval_rollouts.parquet", columns=["metric", "trial", "step", "obj_pos"]
+    ).to_pydict()
+    trials = pq.read_table(
+        f"{ev}/eval_trials.parquet", columns=["metric", "trial", "down_step", "success", "mean_sm"]
+    ).to_pydict()
+    paths = {}
+    for m, t, s, p in zip(roll["metric"], roll["trial"], roll["step"], roll["obj_pos"]):
+        if m == "sr":
+            paths.setdefault(t, []).append((s, p[2]))
+    keep = [
+        (t, ok, sm)
+        for m, t, d, ok, sm in zip(
+            trials["metric"], trials["trial"], trials["down_step"], trials["success"], trials["mean_sm"]
+        )
+        if m == "sr" and t in paths and (d is None or d > min_standing)
     ]
     print(
-        f"{len(keep)} of {len(recorded)} recorded trials stood for more than "
+        f"{len(keep)} of {len(paths)} recorded trials stood for more than "
         f"{min_standing} steps"
     )
-    for _, t in keep.iterrows():
-        d = roll[roll.trial == t.trial].sort_values("step")
-        z = np.array([o[2] for o in d.obj_pos.values])
+    for t, ok, sm in sorted(keep):
+        z = np.array([h for _, h in sorted(paths[t])])
         apex = [z[i : i + 50].max() for i in range(0, len(z), 50)]
         low = z < 0.15
         rest = next(
@@ -44,10 +53,10 @@ def main():
             None,
         )
         print(
-            f"trial {t.trial:3d}: apex per 50 steps "
+            f"trial {t:3d}: apex per 50 steps "
             + " ".join(f"{a:.2f}" for a in apex)
-            + f" | at rest from step {rest} | success {bool(t.success)}, "
-            f"mean SM {t.mean_sm:.3f}"
+            + f" | at rest from step {rest} | success {bool(ok)}, "
+            f"mean SM {sm:.3f}"
         )
 
 
