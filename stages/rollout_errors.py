@@ -13,7 +13,8 @@ root against the reference's (m), the ball's distance to the reference ball
 (m) and the SM reward. Reference positions are the clip's own (not moved by
 a continuation's anchor), so use it on steps before the first seam or on
 cells without continuation (`nr`). BallPlay only: the body groups are those
-of its 53-body humanoid and the ball is object 0.
+of its 53-body humanoid and the ball is object 0. Needs pyarrow and numpy
+(what `.ci/run` installs), not pandas.
 """
 import sys
 
@@ -36,25 +37,29 @@ def rms(d, bodies):
 def main():
     run, ev = sys.argv[1], sys.argv[2]
     steps = [int(s) for s in sys.argv[3:]] or [1, 5, 10, 20, 30, 40, 60, 80]
-    f = pq.read_table(f"{run}/frames.parquet").to_pandas()
+    # pyarrow and numpy only (no pandas): columns as Python lists
+    f = pq.read_table(
+        f"{run}/frames.parquet", columns=["clip_id", "frame", "root_pos", "joint_rot", "obj_pos"]
+    ).to_pydict()
     ref = {
         (c, k): (np.array(p), np.array(j), np.array(o))
-        for c, k, p, j, o in zip(f.clip_id, f.frame, f.root_pos, f.joint_rot, f.obj_pos)
+        for c, k, p, j, o in zip(f["clip_id"], f["frame"], f["root_pos"], f["joint_rot"], f["obj_pos"])
     }
-    r = pq.read_table(f"{ev}/eval_rollouts.parquet").to_pandas()
+    cols = ["step", "ref_clip", "ref_frame", "root_pos", "joint_rot", "obj_pos", "sm_reward"]
+    r = pq.read_table(f"{ev}/eval_rollouts.parquet", columns=cols).to_pydict()
     rows = {}
-    for x in r.itertuples():
-        if x.step not in steps or x.ref_clip is None or np.isnan(x.ref_clip):
+    for step, rc, rf, root, joints, obj, sm in zip(*(r[c] for c in cols)):
+        if step not in steps or rc is None:
             continue
-        p, j, o = ref[(int(x.ref_clip), int(x.ref_frame))]
-        root = np.array(x.root_pos)
-        d = np.array(x.joint_rot) - j
-        ball = np.array(x.obj_pos)[:3]
-        rows.setdefault(x.step, []).append([
+        p, j, o = ref[(int(rc), int(rf))]
+        root = np.array(root)
+        d = np.array(joints) - j
+        ball = np.array(obj)[:3]
+        rows.setdefault(step, []).append([
             np.linalg.norm(root[:2] - p[:2]), abs(root[2] - p[2]),
             rms(d, LEGS), rms(d, TRUNK), rms(d, ARMS), rms(d, FINGERS),
             np.linalg.norm(ball - root), np.linalg.norm(o[:3] - p),
-            np.linalg.norm(ball - o[:3]), x.sm_reward if x.sm_reward is not None else np.nan,
+            np.linalg.norm(ball - o[:3]), sm if sm is not None else np.nan,
         ])
     print("step trials root_xy root_z legs trunk arms fingers ball-root (ref) ball_err sm")
     for s in steps:
