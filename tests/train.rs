@@ -994,6 +994,11 @@ fn the_push_warm_start_fits_the_searched_offsets_inside_push_windows() {
             harder += 1;
         }
     }
+    // measured with the same short search (`skillaug check-ball --set
+    // check-ball.push_search=true --set check-ball.population=16 --set
+    // check-ball.elites=4 --set check-ball.iterations=4`, arms column): all
+    // three DF windows push harder than the clip's own targets, by 0.52,
+    // 0.17 and 0.27 m/s
     assert!(harder >= 1, "no window pushed harder: {pushes:?}");
 
     // one row per usable frame (no perturbed copies): zero residual
