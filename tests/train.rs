@@ -54,8 +54,9 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // in a_grace_after_seams_keeps_the_key_point_rule_off_...), clips
     // left early at their best seams, rollouts collected on a second
     // thread during the update (the pending rollout and the update's
-    // generator travel in the checkpoint), and the object assist, fading
-    // from 0.5 to 0.25 over the run (its strength follows the samples)
+    // generator travel in the checkpoint), the object assist, fading
+    // from 0.5 to 0.25 over the run (its strength follows the samples),
+    // and seams matched to the simulated state
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -99,6 +100,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.object_assist_samples=3840",
             "--set",
             "train.object_assist_band=0.2",
+            "--set",
+            "train.seam_match=simulation",
         ],
     );
 }
@@ -589,6 +592,111 @@ fn continue_past_the_clip_end(masked_min: u32) {
     );
     let st = env.take_stats();
     assert_eq!(st.continuations, n as u64);
+}
+
+#[test]
+fn seams_matched_to_the_simulation_continue_at_the_frame_nearest_the_character_and_ball() {
+    // 200-step DF episodes with zero actions and `seam_match =
+    // "simulation"`: at every clip end the reference continues at the
+    // skill's frame most similar to the simulated state after that step
+    // (the pool's nearest, checked by recomputing it here), after the
+    // masked steps Eq. 20 gives for that similarity; the character falls
+    // and its ball rolls away, so some seams leave the clip's own seam
+    use skillaug::augment::seam::{SeamMatch, SeamPool};
+    let cfg = TrainConfig {
+        skills: vec!["run".into()],
+        episode_length: 200,
+        early_termination: false,
+        seam_match: SeamMatch::Simulation,
+        ..TrainConfig::default()
+    };
+    let (_dir, s) = ballplay_setup(&cfg);
+    let fps = s.lib.clips[0].fps as f64;
+    let (_, min_loop) = skillaug::augment::seam::training_seams(&s.lib, cfg.seam_min_loop_s, fps);
+    let pool = SeamPool::new(&s.lib, min_loop);
+    let w = skillaug::reward::Weights::sm(skillaug::reward::DatasetKind::of_library(&s.lib));
+    let p = s.stf.clone();
+    // a frame of the pool is its own nearest (S_k = 1 at itself)
+    for &c in &s.clips {
+        let st = s.lib.state(c, 20).unwrap();
+        let near = pool.nearest(&s.lib, c, &st, &w).unwrap();
+        assert_eq!((near.to_clip as usize, near.to_frame), (c, 20));
+        assert!((near.beta - 1.0).abs() < 1e-9, "{near:?}");
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let n = 4;
+    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+    env.set_recording(true);
+    let zeros = vec![0f32; n * env.act_dim()];
+    // per env and step: the reference (clip, frame) and the state after it
+    let mut trace: Vec<Vec<_>> = vec![Vec::new(); n];
+    let mut ended = vec![false; n];
+    for _ in 0..200 {
+        let r = env.step(&zeros, &mut rng).unwrap();
+        let recs = env.take_recorded();
+        for e in 0..n {
+            if ended[e] {
+                continue;
+            }
+            let rec = recs[e].as_ref().unwrap();
+            trace[e].push((rec.reference, env.state_of(e).unwrap()));
+            ended[e] = r.terminated[e] || r.truncated[e];
+        }
+    }
+    let (mut seams_seen, mut off_own_seam, mut unlinked) = (0, 0, 0);
+    for t in &trace {
+        if t.len() < 200 {
+            // the episode ended with its reference, at a clip end: the
+            // fallen character's nearest frame is no closer than tau (no
+            // connection, Eq. 20; its state is gone with the reset, so the
+            // similarity cannot be recomputed here)
+            let (c0, f0) = t.last().unwrap().0.unwrap();
+            assert_eq!(f0, s.lib.frames[c0 as usize].last_valid().unwrap() as u32);
+            unlinked += 1;
+        }
+        let mut prev: Option<(usize, (u32, u32))> = None;
+        for (k, step) in t.iter().enumerate() {
+            let Some((c1, f1)) = step.0 else { continue };
+            let Some((q, (c0, f0))) = prev.replace((k, (c1, f1))) else {
+                continue;
+            };
+            if (c1, f1) == (c0, f0 + 1) && k == q + 1 {
+                continue;
+            }
+            let last = s.lib.frames[c0 as usize].last_valid().unwrap() as u32;
+            assert_eq!(f0, last, "jumped from a frame before the clip's end");
+            // the state after the clip's last step picks the seam
+            let want = pool.nearest(&s.lib, c0 as usize, &t[q].1, &w).unwrap();
+            let masked = skillaug::augment::n_masked(want.beta, p.tau, p.n_max, p.mask_rule)
+                .unwrap() as usize;
+            assert_eq!(
+                k - q - 1,
+                masked,
+                "masked steps by Eq. 20 at beta {}",
+                want.beta
+            );
+            let frame = if masked == 0 {
+                want.to_frame + 1
+            } else {
+                want.to_frame
+            };
+            assert_eq!((c1, f1), (want.to_clip, frame), "{want:?}");
+            let own = s.seams[c0 as usize].unwrap();
+            if (want.to_clip, want.to_frame) != (own.to_clip, own.to_frame) {
+                off_own_seam += 1;
+            }
+            seams_seen += 1;
+        }
+    }
+    eprintln!("{seams_seen} seams, {off_own_seam} off the own seam, {unlinked} unlinked");
+    assert!(
+        seams_seen >= n,
+        "{seams_seen} seams in {n} 200-step episodes"
+    );
+    assert!(
+        off_own_seam > 0,
+        "every seam matched the clip's own, {seams_seen} seams"
+    );
 }
 
 #[test]

@@ -20,6 +20,23 @@ use crate::motion::{quat, MotionLib, State};
 use crate::reward::{self, Align, Weights};
 use serde::{Deserialize, Serialize};
 
+/// What a continued reference's seam frame is matched to when a clip
+/// ends (`train.seam_match`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SeamMatch {
+    /// The clip's last valid frame: one seam per clip, found once
+    /// ([`seams`]), as the STG links reference frames (paper Section 4.4).
+    #[default]
+    Reference,
+    /// The simulated state when the clip ends: the skill's frame most
+    /// similar to where the character and the ball are then
+    /// ([`SeamPool::nearest`]), so a dribble whose ball runs low or early
+    /// continues at the reference's phase that has the ball there. Not in
+    /// the paper or the reference code.
+    Simulation,
+}
+
 /// Where clip `clip`'s reference continues after its last valid frame.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Seam {
@@ -40,41 +57,85 @@ pub struct Seam {
 /// weights (the dataset's SM weights); `min_loop`: the shortest continued
 /// segment, frames.
 pub fn seams(lib: &MotionLib, w: &Weights, min_loop: usize) -> Vec<Option<Seam>> {
+    let pool = SeamPool::new(lib, min_loop);
     (0..lib.clips.len())
         .map(|c| {
             let last = lib.frames[c].last_valid()?;
-            let end = lib.state(c, last)?;
-            let mut best: Option<Seam> = None;
-            for c2 in lib.clips_of(&lib.clips[c].skill) {
-                let Some(last2) = lib.frames[c2].last_valid() else {
-                    continue;
-                };
-                let allowed = start_frames(&lib.frames[c2]);
-                for (f, ok) in allowed.iter().enumerate() {
-                    let far = if c2 == c {
-                        f + min_loop <= last
-                    } else {
-                        f + min_loop <= last2
-                    };
-                    if !*ok || !far {
-                        continue;
-                    }
-                    let Some(s) = lib.state(c2, f) else { continue };
-                    let beta = reward::similarity(&end, &s, lib.skeleton, w, Align::default());
-                    if best.is_none_or(|b| beta > b.beta) {
-                        best = Some(Seam {
-                            clip: c as u32,
-                            last: last as u32,
-                            to_clip: c2 as u32,
-                            to_frame: f as u32,
-                            beta,
-                        });
-                    }
-                }
-            }
-            best
+            pool.nearest(lib, c, &lib.state(c, last)?, w)
         })
         .collect()
+}
+
+/// The frames a reference may continue at after a clip's end, per skill:
+/// every frame f of every clip of the skill that a start may be
+/// ([`start_frames`]) and that leaves at least `min_loop` frames before its
+/// clip's last valid frame (a frame of the ending clip itself then lies at
+/// least `min_loop` frames before L, as [`seams`] requires), with its
+/// state, in clip then frame order.
+#[derive(Clone, Debug, Default)]
+pub struct SeamPool {
+    /// Per clip: index into `skills` of its skill's candidates.
+    skill_of: Vec<usize>,
+    /// Per skill: (clip, frame, reference state) of each candidate.
+    skills: Vec<Vec<(u32, u32, State)>>,
+}
+
+impl SeamPool {
+    /// The candidates of every skill of `lib` (`min_loop`: frames).
+    pub fn new(lib: &MotionLib, min_loop: usize) -> SeamPool {
+        let mut names: Vec<&str> = Vec::new();
+        let mut pool = SeamPool::default();
+        for row in &lib.clips {
+            let k = match names.iter().position(|n| *n == row.skill) {
+                Some(k) => k,
+                None => {
+                    names.push(&row.skill);
+                    let mut cands = Vec::new();
+                    for c2 in lib.clips_of(&row.skill) {
+                        let Some(last2) = lib.frames[c2].last_valid() else {
+                            continue;
+                        };
+                        for (f, ok) in start_frames(&lib.frames[c2]).iter().enumerate() {
+                            if *ok && f + min_loop <= last2 {
+                                if let Some(s) = lib.state(c2, f) {
+                                    cands.push((c2 as u32, f as u32, s));
+                                }
+                            }
+                        }
+                    }
+                    pool.skills.push(cands);
+                    names.len() - 1
+                }
+            };
+            pool.skill_of.push(k);
+        }
+        pool
+    }
+
+    /// The seam of clip `clip` continued from state `end`: the candidate of
+    /// its skill most similar to `end` under S_k (Eq. 19, `w`) with the
+    /// root's x, y and heading aligned (the first such frame on a tie;
+    /// `None` for a clip without a valid frame or a skill without
+    /// candidates). `end` is the clip's last valid frame for [`seams`], or
+    /// the simulated state when the trainer matches seams to the
+    /// simulation (`train.seam_match = "simulation"`).
+    pub fn nearest(&self, lib: &MotionLib, clip: usize, end: &State, w: &Weights) -> Option<Seam> {
+        let last = lib.frames.get(clip)?.last_valid()?;
+        let mut best: Option<Seam> = None;
+        for (c2, f, s) in &self.skills[*self.skill_of.get(clip)?] {
+            let beta = reward::similarity(end, s, lib.skeleton, w, Align::default());
+            if best.is_none_or(|b| beta > b.beta) {
+                best = Some(Seam {
+                    clip: clip as u32,
+                    last: last as u32,
+                    to_clip: *c2,
+                    to_frame: *f,
+                    beta,
+                });
+            }
+        }
+        best
+    }
 }
 
 /// For every clip, the frame L' at which training leaves it: among the

@@ -381,6 +381,7 @@ pub fn plan_cells(
         velocity_feed_forward_joints: t.velocity_feed_forward_joints,
         seam_blend_steps: t.seam_blend_steps,
         seam_masked_min: t.seam_masked_min,
+        seam_match: t.seam_match,
         ..EnvConfig::training(t.method)
     };
     let class_of = |skill: &str| -> u32 {

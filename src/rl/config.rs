@@ -4,6 +4,7 @@
 //! evaluation and export read.
 
 use crate::augment::ats::Update;
+use crate::augment::seam::SeamMatch;
 use crate::augment::settings::StfConfig;
 use crate::reward::{ContactDetect, ContactRule, RootRot, WeightOverrides};
 use crate::rl::humanoid::{FeedForwardJoints, MaskedReward, Method};
@@ -265,6 +266,14 @@ pub struct TrainConfig {
     /// written when 0.
     #[serde(skip_serializing_if = "is_zero_f64")]
     pub object_assist_band: f64,
+    /// What a continued reference's seam frame is matched to when its clip
+    /// ends: `"reference"` (the clip's last frame; one seam per clip, the
+    /// STG's rule) or `"simulation"` (the simulated character and ball at
+    /// that step: the skill's most similar frame then;
+    /// [`crate::augment::seam::SeamMatch`]). Not in the paper or the
+    /// reference code. Not written when `"reference"`.
+    #[serde(skip_serializing_if = "is_reference_seam")]
+    pub seam_match: SeamMatch,
 }
 
 fn is_zero_u64(x: &u64) -> bool {
@@ -295,6 +304,10 @@ pub enum WarmStartPush {
     Arms,
     /// Offsets on the arms, torso, spine, chest, thorax and neck.
     Upper,
+}
+
+fn is_reference_seam(m: &SeamMatch) -> bool {
+    *m == SeamMatch::Reference
 }
 
 fn is_push_off(p: &WarmStartPush) -> bool {
@@ -405,6 +418,7 @@ impl Default for TrainConfig {
             object_assist: 0.0,
             object_assist_samples: 0,
             object_assist_band: 0.0,
+            seam_match: SeamMatch::Reference,
         }
     }
 }

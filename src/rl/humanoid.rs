@@ -67,7 +67,7 @@
 
 use super::{StepResult, VecEnv};
 use crate::augment::ats::{Ats, AtsParams, AtsWeights, Update};
-use crate::augment::seam::Seam;
+use crate::augment::seam::{Seam, SeamMatch, SeamPool};
 use crate::augment::stf::{StartKind, Step, StfParams, StfSampler, Trajectory};
 use crate::motion::{quat, MotionLib, Skeleton, State};
 use crate::nn::he::{self, HistoryEncoder};
@@ -235,6 +235,10 @@ pub struct EnvConfig {
     /// ([`World::pull_object`]), so the assist only keeps the ball from
     /// being lost and the reward still scores the push inside the band.
     pub object_assist_band: f32,
+    /// What a seam frame is matched to when a continued reference's clip
+    /// ends ([`SeamMatch`]): the clip's precomputed seam, or the skill's
+    /// frame most similar to the simulated state at that step.
+    pub seam_match: SeamMatch,
 }
 
 /// Natural frequency of the object assist's spring, Hz: at strength 1 the
@@ -275,6 +279,7 @@ impl EnvConfig {
             term_grace_steps: 0,
             object_assist: 0.0,
             object_assist_band: 0.0,
+            seam_match: SeamMatch::Reference,
         }
     }
 }
@@ -836,6 +841,9 @@ struct Ctx<'a> {
     wrists: Vec<usize>,
     /// Seam of every clip (used with `continue_steps`).
     seams: Vec<Option<Seam>>,
+    /// The frames a seam may continue at (used with
+    /// [`SeamMatch::Simulation`]).
+    seam_pool: SeamPool,
     /// STF parameters (Eq. 20 at the seams).
     stf: StfParams,
     /// Per joint (`[J]`): whether it gets feed-forward target velocities
@@ -1254,7 +1262,14 @@ impl Ctx<'_> {
             return;
         };
         let Some(clip) = last.ref_clip else { return };
-        let Some(seam) = self.seams.get(clip as usize).copied().flatten() else {
+        let seam = match self.cfg.seam_match {
+            SeamMatch::Reference => self.seams.get(clip as usize).copied().flatten(),
+            SeamMatch::Simulation => {
+                let w = Weights::sm(self.kind);
+                self.seam_pool.nearest(self.lib, clip as usize, s, &w)
+            }
+        };
+        let Some(seam) = seam else {
             return;
         };
         let p = &self.stf;
@@ -1399,6 +1414,10 @@ pub struct EnvParts<'a> {
     /// Seam of every clip of `lib` ([`crate::augment::seam::seams`]); read
     /// only with `cfg.continue_steps > 0`.
     pub seams: Vec<Option<Seam>>,
+    /// The frames a seam may continue at ([`SeamPool::new`]); read only
+    /// with `cfg.continue_steps > 0` and [`SeamMatch::Simulation`] (may be
+    /// empty otherwise).
+    pub seam_pool: SeamPool,
 }
 
 impl<'a> HumanoidEnv<'a> {
@@ -1444,6 +1463,7 @@ impl<'a> HumanoidEnv<'a> {
             sim: parts.sim,
             cfg: parts.cfg,
             seams: parts.seams,
+            seam_pool: parts.seam_pool,
             stf: parts.stf.clone(),
             ff_rate_joints,
         };
@@ -1671,6 +1691,13 @@ impl<'a> HumanoidEnv<'a> {
     pub fn reference_of(&self, e: usize) -> Option<State> {
         let ep = self.eps.get(e)?;
         (ep.t > 0).then(|| self.ctx.reference(ep, ep.t)).flatten()
+    }
+
+    /// The simulated state of environment `e` now: after its last step
+    /// (the state the reward, the termination rules and the continuation
+    /// saw), or its start after a reset. `None` for an unknown `e`.
+    pub fn state_of(&self, e: usize) -> Option<State> {
+        self.worlds.get(e).map(World::get_state)
     }
 
     /// The SM reward of each environment at the last step (`None` when masked).

@@ -22,6 +22,7 @@ use super::humanoid::{
 };
 use super::{collect, Agent, EpisodeTracker, StepResult, VecEnv};
 use crate::augment::ats::{Ats, AtsParams};
+use crate::augment::seam::{SeamMatch, SeamPool};
 use crate::augment::settings::StfConfig;
 use crate::augment::stf::{StfParams, StfSampler};
 use crate::motion::MotionLib;
@@ -59,6 +60,9 @@ pub struct Setup {
     pub fk: bool,
     /// Seam of every clip ([`crate::augment::seam`]).
     pub seams: Vec<Option<crate::augment::seam::Seam>>,
+    /// The frames a seam may continue at with `train.seam_match =
+    /// "simulation"` (empty otherwise).
+    pub seam_pool: crate::augment::seam::SeamPool,
 }
 
 impl Setup {
@@ -147,9 +151,15 @@ impl Setup {
         } else {
             (lib, edges)
         };
-        let (seams, _) = crate::augment::seam::training_seams(&lib, cfg.seam_min_loop_s, fps);
+        let (seams, min_loop) =
+            crate::augment::seam::training_seams(&lib, cfg.seam_min_loop_s, fps);
+        let seam_pool = match cfg.seam_match {
+            SeamMatch::Simulation => SeamPool::new(&lib, min_loop),
+            SeamMatch::Reference => SeamPool::default(),
+        };
         Ok(Setup {
             seams,
+            seam_pool,
             fk: stf_cfg.fk,
             lib,
             edges,
@@ -254,6 +264,7 @@ pub fn environment<'a>(
         seam_blend_steps: cfg.seam_blend_steps,
         term_grace_steps: cfg.term_grace_steps,
         object_assist_band: cfg.object_assist_band as f32,
+        seam_match: cfg.seam_match,
         nsi_follow: cfg.nsi && !cfg.stf,
         ats: cfg.ats,
         ats_params: s.ats_params,
@@ -295,6 +306,7 @@ pub fn environment_with<'a>(
             cfg: env_cfg,
             he,
             seams: s.seams.clone(),
+            seam_pool: s.seam_pool.clone(),
         },
         n,
         rng,
@@ -1188,6 +1200,16 @@ impl<'a> Trainer<'a> {
             on.push(format!(
                 "seam_blend_steps={}{}",
                 cfg.seam_blend_steps,
+                if cfg.continuation {
+                    ""
+                } else {
+                    " (no effect: continuation off)"
+                }
+            ));
+        }
+        if cfg.seam_match == SeamMatch::Simulation {
+            on.push(format!(
+                "seam_match=simulation (seams matched to the simulated state){}",
                 if cfg.continuation {
                     ""
                 } else {
