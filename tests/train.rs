@@ -600,7 +600,8 @@ fn seams_matched_to_the_simulation_continue_at_the_frame_nearest_the_character_a
     // "simulation"`: at every clip end the reference continues at the
     // skill's frame most similar to the simulated state after that step
     // (the pool's nearest, checked by recomputing it here), after the
-    // masked steps Eq. 20 gives for that similarity; the character falls
+    // masked steps Eq. 20 gives for that similarity, or at the clip's own
+    // seam when no frame is more similar than tau; the character falls
     // and its ball rolls away, so some seams leave the clip's own seam
     use skillaug::augment::seam::{SeamMatch, SeamPool};
     let cfg = TrainConfig {
@@ -645,15 +646,7 @@ fn seams_matched_to_the_simulation_continue_at_the_frame_nearest_the_character_a
     }
     let (mut seams_seen, mut off_own_seam, mut unlinked) = (0, 0, 0);
     for t in &trace {
-        if t.len() < 200 {
-            // the episode ended with its reference, at a clip end: the
-            // fallen character's nearest frame is no closer than tau (no
-            // connection, Eq. 20; its state is gone with the reset, so the
-            // similarity cannot be recomputed here)
-            let (c0, f0) = t.last().unwrap().0.unwrap();
-            assert_eq!(f0, s.lib.frames[c0 as usize].last_valid().unwrap() as u32);
-            unlinked += 1;
-        }
+        assert_eq!(t.len(), 200, "every episode lasts episode_length steps");
         let mut prev: Option<(usize, (u32, u32))> = None;
         for (k, step) in t.iter().enumerate() {
             let Some((c1, f1)) = step.0 else { continue };
@@ -666,7 +659,12 @@ fn seams_matched_to_the_simulation_continue_at_the_frame_nearest_the_character_a
             let last = s.lib.frames[c0 as usize].last_valid().unwrap() as u32;
             assert_eq!(f0, last, "jumped from a frame before the clip's end");
             // the state after the clip's last step picks the seam
-            let want = pool.nearest(&s.lib, c0 as usize, &t[q].1, &w).unwrap();
+            let own = s.seams[c0 as usize].unwrap();
+            let mut want = pool.nearest(&s.lib, c0 as usize, &t[q].1, &w).unwrap();
+            if want.beta <= p.tau {
+                want = own;
+                unlinked += 1;
+            }
             let masked = skillaug::augment::n_masked(want.beta, p.tau, p.n_max, p.mask_rule)
                 .unwrap() as usize;
             assert_eq!(
@@ -681,7 +679,6 @@ fn seams_matched_to_the_simulation_continue_at_the_frame_nearest_the_character_a
                 want.to_frame
             };
             assert_eq!((c1, f1), (want.to_clip, frame), "{want:?}");
-            let own = s.seams[c0 as usize].unwrap();
             if (want.to_clip, want.to_frame) != (own.to_clip, own.to_frame) {
                 off_own_seam += 1;
             }

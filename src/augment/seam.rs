@@ -32,8 +32,10 @@ pub enum SeamMatch {
     /// The simulated state when the clip ends: the skill's frame most
     /// similar to where the character and the ball are then
     /// ([`SeamPool::nearest`]), so a dribble whose ball runs low or early
-    /// continues at the reference's phase that has the ball there. Not in
-    /// the paper or the reference code.
+    /// continues at the reference's phase that has the ball there, after
+    /// the masked steps Eq. 20 gives for that similarity; a state no frame
+    /// is more similar to than tau continues at the clip's own seam. Not
+    /// in the paper or the reference code.
     Simulation,
 }
 

@@ -1262,12 +1262,16 @@ impl Ctx<'_> {
             return;
         };
         let Some(clip) = last.ref_clip else { return };
+        let own = self.seams.get(clip as usize).copied().flatten();
         let seam = match self.cfg.seam_match {
-            SeamMatch::Reference => self.seams.get(clip as usize).copied().flatten(),
-            SeamMatch::Simulation => {
-                let w = Weights::sm(self.kind);
-                self.seam_pool.nearest(self.lib, clip as usize, s, &w)
-            }
+            SeamMatch::Reference => own,
+            // a state no frame connects to (beta <= tau, Eq. 20) continues
+            // at the clip's own seam, as with `Reference`
+            SeamMatch::Simulation => self
+                .seam_pool
+                .nearest(self.lib, clip as usize, s, &Weights::sm(self.kind))
+                .filter(|x| x.beta > self.stf.tau)
+                .or(own),
         };
         let Some(seam) = seam else {
             return;
