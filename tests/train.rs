@@ -56,7 +56,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // thread during the update (the pending rollout and the update's
     // generator travel in the checkpoint), the object assist, fading
     // from 0.5 to 0.25 over the run (its strength follows the samples),
-    // and seams matched to the simulated state
+    // seams matched to the simulated state, and correlated action noise
+    // (each running episode's last noise travels in the checkpoint)
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -102,6 +103,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.object_assist_band=0.2",
             "--set",
             "train.seam_match=simulation",
+            "--set",
+            "train.ppo.noise_correlation=0.9",
         ],
     );
 }

@@ -361,6 +361,11 @@ pub struct PpoOverrides {
     /// SkillMimic's released code. Not written when unset.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub policy_out_bound: Option<f64>,
+    /// Correlation of the action noise between consecutive steps, in
+    /// [0, 1) ([`PpoConfig::noise_correlation`]; 0 = independent, the
+    /// default). Not written when unset.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise_correlation: Option<f64>,
 }
 
 impl Default for TrainConfig {
@@ -475,6 +480,9 @@ impl TrainConfig {
             norm_after_update,
             normalize_value
         );
+        if let Some(r) = o.noise_correlation {
+            c.noise_correlation = r;
+        }
         if o.kl_threshold.is_some() {
             c.kl_threshold = o.kl_threshold;
         }
@@ -559,6 +567,11 @@ impl crate::config::Validate for TrainConfig {
             if let Some(v) = v {
                 p.range(k, v, 0.0, 1.0)?;
             }
+        }
+        if let Some(r) = o.noise_correlation {
+            p.holds((0.0..1.0).contains(&r), || {
+                format!("noise_correlation = {r}: must be in [0, 1)")
+            })?;
         }
         if let Some(n) = o.minibatch {
             p.count("minibatch", n as u64, 1, 1 << 30)?;

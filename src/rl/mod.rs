@@ -66,7 +66,10 @@ pub trait VecEnv {
 }
 
 /// Running per-environment episode returns and the returns of finished
-/// episodes.
+/// episodes; with correlated action noise
+/// ([`PpoConfig::noise_correlation`]) also each running episode's last
+/// noise, so a rollout continues it where the last one stopped (and a
+/// checkpoint keeps it).
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct EpisodeTracker {
     running: Vec<f64>,
@@ -75,6 +78,14 @@ pub struct EpisodeTracker {
     pub finished: Vec<f64>,
     /// Lengths of those episodes.
     pub finished_lengths: Vec<usize>,
+    /// `[N * act_dim]`: the standard-normal action noise of each
+    /// environment's last step (empty until correlated noise is used).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    noise: Vec<f64>,
+    /// `[N]`: whether that noise belongs to the running episode (false at
+    /// an episode's start, where the noise starts afresh).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    noise_live: Vec<bool>,
 }
 
 impl EpisodeTracker {
@@ -134,9 +145,40 @@ pub fn collect<E: VecEnv + ?Sized>(
     );
     let mut ro = Rollout::new(n, od, ad);
     let mut obs = env.observe();
+    let rho = agent.noise_correlation();
+    if rho > 0.0 && tracker.noise.len() != n * ad {
+        tracker.noise = vec![0.0; n * ad];
+        tracker.noise_live = vec![false; n];
+    }
+    let mut xi = vec![0f64; n * ad];
     for _ in 0..steps {
-        let out = agent.act(&obs, false, rng)?;
+        // ξ from `rng` as for independent noise; correlated noise
+        // continues each running episode's last z
+        ppo::standard_normal(&mut xi, rng);
+        if rho > 0.0 {
+            let keep = (1.0 - rho * rho).sqrt();
+            for e in 0..n {
+                let (z, x) = (
+                    &mut tracker.noise[e * ad..(e + 1) * ad],
+                    &xi[e * ad..(e + 1) * ad],
+                );
+                if tracker.noise_live[e] {
+                    for (z, x) in z.iter_mut().zip(x) {
+                        *z = rho * *z + keep * x;
+                    }
+                } else {
+                    z.copy_from_slice(x);
+                }
+            }
+        }
+        let z = if rho > 0.0 { &tracker.noise } else { &xi };
+        let out = agent.act_with_noise(&obs, z)?;
         let s = env.step(&out.actions, rng)?;
+        if rho > 0.0 {
+            for e in 0..n {
+                tracker.noise_live[e] = !(s.terminated[e] || s.truncated[e]);
+            }
+        }
         ensure!(
             s.rewards.len() == n && s.final_obs.len() == n * od,
             "collect: environment step sizes"

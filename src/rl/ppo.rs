@@ -129,6 +129,21 @@ pub struct PpoConfig {
     pub lr_min: f64,
     /// Upper bound of the adaptive rate.
     pub lr_max: f64,
+    /// Correlation ρ in [0, 1) of the action noise between consecutive
+    /// steps of one episode: the standard-normal noise z_t of μ + σ·z_t
+    /// follows z_t = ρ·z_{t−1} + sqrt(1 − ρ²)·ξ_t with ξ_t independent
+    /// (a discretised Ornstein-Uhlenbeck process, the exploration noise of
+    /// DDPG, Lillicrap et al. 2016, Section 7; z_0 = ξ_0 at an episode's
+    /// start), so every z_t is still N(0, 1) and the log-probabilities are
+    /// the Gaussian policy's; the noise keeps a direction for about
+    /// 1 / (1 − ρ) steps ([`collect`](super::collect)). 0 = independent
+    /// noise at every step (SkillMimic's). Not written when 0.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub noise_correlation: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Default for PpoConfig {
@@ -156,6 +171,7 @@ impl Default for PpoConfig {
             kl_threshold: None,
             lr_min: 1e-6,
             lr_max: 1e-2,
+            noise_correlation: 0.0,
         }
     }
 }
@@ -172,6 +188,11 @@ impl PpoConfig {
 
     fn validate(&self) -> Result<()> {
         ensure!(self.sigma > 0.0, "ppo: sigma must be > 0");
+        ensure!(
+            (0.0..1.0).contains(&self.noise_correlation),
+            "ppo: noise_correlation must be in [0, 1), got {}",
+            self.noise_correlation
+        );
         ensure!(
             self.epochs > 0 && self.minibatch > 0,
             "ppo: epochs and minibatch must be > 0"
@@ -851,23 +872,33 @@ impl Agent {
         deterministic: bool,
         rng: &mut R,
     ) -> Result<ActOut> {
+        let mut z = vec![0f64; obs.len() / self.obs_dim.max(1) * self.act_dim];
+        if !deterministic {
+            standard_normal(&mut z, rng);
+        }
+        self.act_with_noise(obs, &z)
+    }
+
+    /// Actions μ + σ·z for a batch of raw observations (`N * obs_dim`) with
+    /// the given standard-normal noise `z` (`N * act_dim`), with their
+    /// log-probabilities under the Gaussian policy and the state values.
+    ///
+    /// # Errors
+    /// When `z` does not have one value per action, or the networks fail.
+    pub fn act_with_noise(&self, obs: &[f32], z: &[f64]) -> Result<ActOut> {
         let x = self.obs_tensor(obs)?;
         let mu = self.pi.forward(&x)?.flatten_all()?.to_vec1::<f32>()?;
+        ensure!(
+            z.len() == mu.len(),
+            "ppo: {} noise values for {} actions",
+            z.len(),
+            mu.len()
+        );
         let values = self.denorm_values(self.vf.forward(&x)?.flatten_all()?.to_vec1::<f32>()?);
         let d = self.act_dim;
-        let mut z = vec![0f64; mu.len()];
-        if !deterministic {
-            for pair in z.chunks_mut(2) {
-                let (a, b) = crate::random::normal_pair(rng);
-                pair[0] = a;
-                if pair.len() > 1 {
-                    pair[1] = b;
-                }
-            }
-        }
         let actions: Vec<f32> = mu
             .iter()
-            .zip(&z)
+            .zip(z)
             .map(|(&m, &z)| (m as f64 + self.std * z) as f32)
             .collect();
         let c = 0.5 * d as f64 * std::f64::consts::TAU.ln() + d as f64 * self.std.ln();
@@ -888,6 +919,12 @@ impl Agent {
             logp,
             values,
         })
+    }
+
+    /// Correlation of the action noise between steps
+    /// ([`PpoConfig::noise_correlation`]).
+    pub fn noise_correlation(&self) -> f64 {
+        self.cfg.noise_correlation
     }
 
     /// One PPO update on a finished rollout; the minibatch permutations are
@@ -1320,5 +1357,18 @@ impl Agent {
             };
         }
         Ok(agent)
+    }
+}
+
+/// Fill `z` with independent standard-normal values from `rng`, drawn in
+/// pairs ([`crate::random::normal_pair`]; the second value of the last
+/// pair is dropped when `z.len()` is odd).
+pub fn standard_normal<R: Rng + ?Sized>(z: &mut [f64], rng: &mut R) {
+    for pair in z.chunks_mut(2) {
+        let (a, b) = crate::random::normal_pair(rng);
+        pair[0] = a;
+        if pair.len() > 1 {
+            pair[1] = b;
+        }
     }
 }
