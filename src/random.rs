@@ -15,3 +15,17 @@ pub fn normal_pair<R: Rng + ?Sized>(rng: &mut R) -> (f64, f64) {
     let th = std::f64::consts::TAU * u2;
     (r * th.cos(), r * th.sin())
 }
+
+/// Fill `z` with independent standard normal draws, taken in pairs from
+/// [`normal_pair`] in order (the second draw of the last pair is dropped
+/// when `z.len()` is odd): the trainer's action noise, `N * act_dim`
+/// values per policy step.
+pub fn fill_normal<R: Rng + ?Sized>(z: &mut [f64], rng: &mut R) {
+    for pair in z.chunks_mut(2) {
+        let (a, b) = normal_pair(rng);
+        pair[0] = a;
+        if pair.len() > 1 {
+            pair[1] = b;
+        }
+    }
+}

@@ -154,7 +154,7 @@ pub fn collect<E: VecEnv + ?Sized>(
     for _ in 0..steps {
         // ξ from `rng` as for independent noise; correlated noise
         // continues each running episode's last z
-        ppo::standard_normal(&mut xi, rng);
+        crate::random::fill_normal(&mut xi, rng);
         if rho > 0.0 {
             let keep = (1.0 - rho * rho).sqrt();
             for e in 0..n {

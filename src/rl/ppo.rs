@@ -874,7 +874,7 @@ impl Agent {
     ) -> Result<ActOut> {
         let mut z = vec![0f64; obs.len() / self.obs_dim.max(1) * self.act_dim];
         if !deterministic {
-            standard_normal(&mut z, rng);
+            crate::random::fill_normal(&mut z, rng);
         }
         self.act_with_noise(obs, &z)
     }
@@ -1357,18 +1357,5 @@ impl Agent {
             };
         }
         Ok(agent)
-    }
-}
-
-/// Fill `z` with independent standard-normal values from `rng`, drawn in
-/// pairs ([`crate::random::normal_pair`]; the second value of the last
-/// pair is dropped when `z.len()` is odd).
-pub fn standard_normal<R: Rng + ?Sized>(z: &mut [f64], rng: &mut R) {
-    for pair in z.chunks_mut(2) {
-        let (a, b) = crate::random::normal_pair(rng);
-        pair[0] = a;
-        if pair.len() > 1 {
-            pair[1] = b;
-        }
     }
 }
