@@ -484,11 +484,11 @@ fn velocity_feed_forward_follows_a_moving_reference_more_closely() {
 
 #[test]
 fn arms_only_feed_forward_moves_the_hands_with_the_clip_and_gives_the_rest_no_target_velocity() {
-    use skillaug::rl::humanoid::{masked_joint_rates, FeedForwardJoints};
+    use skillaug::rl::humanoid::{masked_joint_rates, JointSet};
     use skillaug::sim::world::joint_rates;
     let (_d, lib, model) = ballplay();
-    let mask = FeedForwardJoints::Arms.mask(&model);
-    assert_eq!(FeedForwardJoints::All.mask(&model), vec![true; mask.len()]);
+    let mask = JointSet::Arms.mask(&model);
+    assert_eq!(JointSet::All.mask(&model), vec![true; mask.len()]);
     let joint = |name: &str| -> usize {
         model
             .bodies

@@ -105,6 +105,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.seam_match=simulation",
             "--set",
             "train.ppo.noise_correlation=0.9",
+            "--set",
+            "train.noise_correlation_joints=arms",
         ],
     );
 }

@@ -7,7 +7,7 @@ use crate::augment::ats::Update;
 use crate::augment::seam::SeamMatch;
 use crate::augment::settings::StfConfig;
 use crate::reward::{ContactDetect, ContactRule, RootRot, WeightOverrides};
-use crate::rl::humanoid::{FeedForwardJoints, MaskedReward, Method};
+use crate::rl::humanoid::{JointSet, MaskedReward, Method};
 use crate::rl::PpoConfig;
 use anyhow::Result;
 use serde::{Deserialize, Serialize};
@@ -201,7 +201,15 @@ pub struct TrainConfig {
     /// ([`crate::rl::humanoid::EnvConfig::velocity_feed_forward_joints`]).
     /// Not written when `"all"`.
     #[serde(skip_serializing_if = "is_all_joints")]
-    pub velocity_feed_forward_joints: FeedForwardJoints,
+    pub velocity_feed_forward_joints: JointSet,
+    /// Which joints' action noise follows `ppo.noise_correlation`: `"all"`,
+    /// or `"arms"` (shoulders, elbows, wrists and the hands, as for
+    /// `velocity_feed_forward_joints`; the other joints keep independent
+    /// noise at every step; no effect without `ppo.noise_correlation`)
+    /// ([`crate::rl::ppo::PpoConfig::noise_correlated_dims`]). Not written
+    /// when `"all"`.
+    #[serde(skip_serializing_if = "is_all_joints")]
+    pub noise_correlation_joints: JointSet,
     /// Steps over which a continued reference blends from the frame its
     /// clip ended on into the frames after the seam
     /// ([`crate::rl::humanoid::EnvConfig::seam_blend_steps`]; 0 = a jump).
@@ -314,8 +322,8 @@ fn is_push_off(p: &WarmStartPush) -> bool {
     *p == WarmStartPush::Off
 }
 
-fn is_all_joints(j: &FeedForwardJoints) -> bool {
-    *j == FeedForwardJoints::All
+fn is_all_joints(j: &JointSet) -> bool {
+    *j == JointSet::All
 }
 
 fn is_false(b: &bool) -> bool {
@@ -413,7 +421,8 @@ impl Default for TrainConfig {
             reference_obs: false,
             feed_forward_lead: 0.0,
             velocity_feed_forward: false,
-            velocity_feed_forward_joints: FeedForwardJoints::All,
+            velocity_feed_forward_joints: JointSet::All,
+            noise_correlation_joints: JointSet::All,
             seam_blend_steps: 0,
             term_grace_steps: 0,
             seam_leave_search_s: 0.0,

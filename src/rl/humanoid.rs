@@ -209,7 +209,7 @@ pub struct EnvConfig {
     /// Which joints get the feed-forward target velocities of
     /// [`EnvConfig::velocity_feed_forward`]; the others keep a zero target
     /// velocity (damped, as in the reference code).
-    pub velocity_feed_forward_joints: FeedForwardJoints,
+    pub velocity_feed_forward_joints: JointSet,
     /// Continued frames blended with the old clip's last frame after a seam
     /// ([`crate::augment::seam::blend`], weights 1/(K+1) .. K/(K+1) on the
     /// new frames); 0 = the reference jumps to the seam frame.
@@ -274,7 +274,7 @@ impl EnvConfig {
             reference_obs: false,
             feed_forward_lead: 0.0,
             velocity_feed_forward: false,
-            velocity_feed_forward_joints: FeedForwardJoints::All,
+            velocity_feed_forward_joints: JointSet::All,
             seam_blend_steps: 0,
             term_grace_steps: 0,
             object_assist: 0.0,
@@ -851,11 +851,13 @@ struct Ctx<'a> {
     ff_rate_joints: Vec<bool>,
 }
 
-/// The joints that [`EnvConfig::velocity_feed_forward`] drives with the
-/// reference's joint velocities.
+/// A set of the humanoid's joints: those that
+/// [`EnvConfig::velocity_feed_forward`] drives with the reference's joint
+/// velocities (`train.velocity_feed_forward_joints`), or those whose action
+/// noise is correlated in time (`train.noise_correlation_joints`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum FeedForwardJoints {
+pub enum JointSet {
     /// Every joint.
     #[default]
     All,
@@ -864,19 +866,20 @@ pub enum FeedForwardJoints {
     /// ([`crate::sim::push::push_joints`], [`crate::sim::world::hand_bodies`];
     /// BallPlay: 36 of 52 joints; on ParaHome's skeleton the T4 shoulder
     /// bodies match too). Legs, trunk, neck, head and BallPlay's thorax
-    /// (clavicle) bodies keep a zero target velocity, so they damp as in
-    /// the reference code while the hands follow the clip's pushes.
+    /// (clavicle) bodies are left out: with feed-forward they keep a zero
+    /// target velocity, so they damp as in the reference code while the
+    /// hands follow the clip's pushes.
     Arms,
 }
 
-impl FeedForwardJoints {
-    /// Per joint of `model` (joint j drives body j + 1): whether it gets
-    /// feed-forward target velocities.
+impl JointSet {
+    /// Per joint of `model` (joint j drives body j + 1): whether it is in
+    /// the set.
     pub fn mask(self, model: &Model) -> Vec<bool> {
         let nj = model.bodies.len().saturating_sub(1);
         match self {
-            FeedForwardJoints::All => vec![true; nj],
-            FeedForwardJoints::Arms => {
+            JointSet::All => vec![true; nj],
+            JointSet::Arms => {
                 let hand = crate::sim::world::hand_bodies(model);
                 let mut m: Vec<bool> = (0..nj).map(|j| hand[j + 1]).collect();
                 for j in crate::sim::push::push_joints(model, false) {
@@ -891,7 +894,7 @@ impl FeedForwardJoints {
 /// The feed-forward target velocities (`[J*3]`, rad/s) of a reference
 /// frame with joint exp-maps `joint_rot` and their rates `joint_vel`
 /// (`[J*3]`, rad and rad/s): [`crate::sim::world::joint_rates`], zero on
-/// every joint j whose `mask[j]` ([`FeedForwardJoints::mask`]) is false.
+/// every joint j whose `mask[j]` ([`JointSet::mask`]) is false.
 pub fn masked_joint_rates(mask: &[bool], joint_rot: &[f32], joint_vel: &[f32]) -> Vec<f32> {
     let mut r = crate::sim::world::joint_rates(joint_rot, joint_vel);
     for (j, on) in mask.iter().enumerate() {

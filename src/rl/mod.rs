@@ -157,14 +157,19 @@ pub fn collect<E: VecEnv + ?Sized>(
         crate::random::fill_normal(&mut xi, rng);
         if rho > 0.0 {
             let keep = (1.0 - rho * rho).sqrt();
+            let dims = agent.noise_correlated_dims();
             for e in 0..n {
                 let (z, x) = (
                     &mut tracker.noise[e * ad..(e + 1) * ad],
                     &xi[e * ad..(e + 1) * ad],
                 );
                 if tracker.noise_live[e] {
-                    for (z, x) in z.iter_mut().zip(x) {
-                        *z = rho * *z + keep * x;
+                    for (k, (z, x)) in z.iter_mut().zip(x).enumerate() {
+                        *z = if dims.is_empty() || dims[k] {
+                            rho * *z + keep * x
+                        } else {
+                            *x
+                        };
                     }
                 } else {
                     z.copy_from_slice(x);

@@ -140,6 +140,13 @@ pub struct PpoConfig {
     /// noise at every step (SkillMimic's). Not written when 0.
     #[serde(skip_serializing_if = "is_zero")]
     pub noise_correlation: f64,
+    /// `[act_dim]`, or empty for every dimension: the action dimensions
+    /// whose noise follows [`PpoConfig::noise_correlation`]; the others get
+    /// independent noise at every step. Either way each z_t is N(0, 1), so
+    /// the log-probabilities stay the Gaussian policy's. Not written when
+    /// empty.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub noise_correlated_dims: Vec<bool>,
 }
 
 fn is_zero(x: &f64) -> bool {
@@ -172,6 +179,7 @@ impl Default for PpoConfig {
             lr_min: 1e-6,
             lr_max: 1e-2,
             noise_correlation: 0.0,
+            noise_correlated_dims: Vec::new(),
         }
     }
 }
@@ -705,6 +713,11 @@ impl Agent {
             obs_dim > 0 && act_dim > 0,
             "ppo: empty observation or action"
         );
+        ensure!(
+            cfg.noise_correlated_dims.is_empty() || cfg.noise_correlated_dims.len() == act_dim,
+            "ppo: noise_correlated_dims has {} entries for {act_dim} action dimensions",
+            cfg.noise_correlated_dims.len()
+        );
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut sizes = vec![obs_dim];
         sizes.extend_from_slice(&cfg.hidden);
@@ -925,6 +938,12 @@ impl Agent {
     /// ([`PpoConfig::noise_correlation`]).
     pub fn noise_correlation(&self) -> f64 {
         self.cfg.noise_correlation
+    }
+
+    /// The action dimensions the correlation applies to
+    /// ([`PpoConfig::noise_correlated_dims`]; empty = all).
+    pub fn noise_correlated_dims(&self) -> &[bool] {
+        &self.cfg.noise_correlated_dims
     }
 
     /// One PPO update on a finished rollout; the minibatch permutations are

@@ -18,7 +18,7 @@
 use super::comm::{fingerprint, Comm};
 use super::config::{PolicyMeta, TrainConfig, WarmStartPush};
 use super::humanoid::{
-    EnvConfig, EnvParts, EnvStats, EpisodeRecord, FeedForwardJoints, HeRuntime, HumanoidEnv,
+    EnvConfig, EnvParts, EnvStats, EpisodeRecord, HeRuntime, HumanoidEnv, JointSet,
 };
 use super::{collect, Agent, EpisodeTracker, StepResult, VecEnv};
 use crate::augment::ats::{Ats, AtsParams};
@@ -899,7 +899,16 @@ impl<'a> Trainer<'a> {
             rng.set_stream(comm.rank() as u64);
         }
         let env = environment(s, cfg, he, n, &mut rng)?;
-        let ppo = cfg.ppo_config();
+        let mut ppo = cfg.ppo_config();
+        if cfg.noise_correlation_joints != JointSet::All {
+            // three action dimensions (an exp-map target) per joint
+            ppo.noise_correlated_dims = cfg
+                .noise_correlation_joints
+                .mask(&s.model)
+                .into_iter()
+                .flat_map(|on| [on; 3])
+                .collect();
+        }
         let mut agent = Agent::new(env.obs_dim(), env.act_dim(), &ppo, seed, inp.dev)?;
         let mut warm_start = None;
         if cfg.warm_start_epochs > 0 {
@@ -1165,7 +1174,7 @@ impl<'a> Trainer<'a> {
         if cfg.velocity_feed_forward {
             on.push(format!(
                 "velocity_feed_forward{}{}",
-                if cfg.velocity_feed_forward_joints == FeedForwardJoints::Arms {
+                if cfg.velocity_feed_forward_joints == JointSet::Arms {
                     " (arms)"
                 } else {
                     ""
@@ -1177,8 +1186,7 @@ impl<'a> Trainer<'a> {
                 }
             ));
         }
-        if cfg.velocity_feed_forward_joints != FeedForwardJoints::All && !cfg.velocity_feed_forward
-        {
+        if cfg.velocity_feed_forward_joints != JointSet::All && !cfg.velocity_feed_forward {
             on.push(
                 "velocity_feed_forward_joints (no effect: velocity_feed_forward is off)"
                     .to_string(),
@@ -1204,6 +1212,16 @@ impl<'a> Trainer<'a> {
                     ""
                 } else {
                     " (no effect: continuation off)"
+                }
+            ));
+        }
+        if cfg.noise_correlation_joints != JointSet::All {
+            on.push(format!(
+                "noise_correlation_joints=arms{}",
+                if cfg.ppo.noise_correlation.unwrap_or(0.0) > 0.0 {
+                    ""
+                } else {
+                    " (no effect: ppo.noise_correlation is 0)"
                 }
             ));
         }
