@@ -22,6 +22,13 @@
 //! targets; the best offset ever drawn (zero included) is reported, so a
 //! search never reports worse than the replay.
 //!
+//! With `objective = "sm"` the search instead maximises the SM reward
+//! (paper Eqs. 12-17, training's weights and reward options) summed over
+//! the window and the `sm_frames` frames after it, the humanoid tracking
+//! the clip's own next frames after the release: is a harder push what the
+//! reward the policy learns from asks for? Either way each reported offset
+//! carries its SM sum ([`SmScore`]).
+//!
 //! Measured figures are in docs/training.md ("No nearby targets push as the
 //! clip does").
 
@@ -30,7 +37,8 @@ use super::mjcf::Model;
 use super::world::{hand_bodies, joint_rates, SimOptions, World};
 use super::ObjectSpec;
 use crate::motion::clip::ClipFrames;
-use crate::motion::MotionLib;
+use crate::motion::{MotionLib, Skeleton};
+use crate::reward::{self, DatasetKind, RewardOptions, Weights};
 use anyhow::{Context, Result};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -63,6 +71,26 @@ pub struct PushConfig {
     /// Physics of the replays and the search (`check-ball.physics.KEY`;
     /// the defaults are training's).
     pub physics: ReplayPhysics,
+    /// What the search optimises: the ball at the release (`"ball"`, the
+    /// module doc's cost) or the SM reward (`"sm"`: its sum over the window
+    /// and the `sm_frames` frames after it, [`SmScore`]).
+    pub objective: PushObjective,
+    /// Frames after the release over which the SM reward is also summed
+    /// (the humanoid then tracks the clip's own next frames), so that the
+    /// ball's bounce after the push counts.
+    pub sm_frames: usize,
+}
+
+/// What a push search optimises ([`PushConfig::objective`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PushObjective {
+    /// The ball's velocity and position at the release against the clip's.
+    #[default]
+    Ball,
+    /// The SM reward (paper Eqs. 12-17, training's weights and options)
+    /// summed over the window and [`PushConfig::sm_frames`] frames after.
+    Sm,
 }
 
 impl Default for PushConfig {
@@ -76,6 +104,8 @@ impl Default for PushConfig {
             iterations: 12,
             init_sd: 0.3,
             physics: ReplayPhysics::default(),
+            objective: PushObjective::Ball,
+            sm_frames: 40,
         }
     }
 }
@@ -91,6 +121,7 @@ impl crate::config::Validate for PushConfig {
         c.count("elites", self.elites as u64, 1, self.population as u64)?;
         c.count("iterations", self.iterations as u64, 0, 10_000)?;
         c.range("init_sd", self.init_sd, 1e-6, 10.0)?;
+        c.count("sm_frames", self.sm_frames as u64, 0, 10_000)?;
         crate::config::Validate::validate(&self.physics, stage)
     }
 }
@@ -170,12 +201,57 @@ pub fn push_joints(model: &Model, upper: bool) -> Vec<usize> {
         .collect()
 }
 
+/// The SM reward of an open-loop replay against the clip's frames: summed
+/// over its steps, and each factor's mean per step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SmScore {
+    /// Steps scored: the window's and up to [`PushConfig::sm_frames`] after
+    /// it (fewer where the clip ends or a frame is missing).
+    pub steps: usize,
+    /// Sum of the SM reward over those steps.
+    pub sum: f64,
+    /// Mean body factor r_b.
+    pub body: f64,
+    /// Mean object factor r_o.
+    pub object: f64,
+    /// Mean relative factor r_rel.
+    pub rel: f64,
+    /// Mean contact factor r_cg.
+    pub cg: f64,
+}
+
+/// How a replay scores the SM reward ([`PushObjective::Sm`] and the
+/// table's SM columns): the skeleton, training's SM weights and reward
+/// options, and the frames after the release.
+#[derive(Clone, Copy)]
+struct Scorer {
+    sk: Skeleton,
+    weights: Weights,
+    opts: RewardOptions,
+    frames: usize,
+}
+
+impl Scorer {
+    fn of(lib: &MotionLib, cfg: &PushConfig) -> Scorer {
+        Scorer {
+            sk: lib.skeleton,
+            weights: Weights::sm(DatasetKind::of_library(lib)),
+            opts: RewardOptions::default(),
+            frames: cfg.sm_frames,
+        }
+    }
+}
+
 /// The ball one frame after a window, replayed under PD from the clip's
-/// state at `w.start` with targets = next frame + `offset` on `joints`.
+/// state at `w.start` with targets = next frame + `offset` on `joints`;
+/// with a scorer, the replay goes on with the clip's own targets for its
+/// frames after the release and the SM reward of every step is summed.
 #[derive(Clone)]
 struct Outcome {
+    /// The ball's cost at the release (module doc).
     cost: f64,
     vel: [f64; 3],
+    sm: Option<SmScore>,
 }
 
 fn replay(
@@ -185,16 +261,33 @@ fn replay(
     joints: &[usize],
     offset: &[f32],
     rates: bool,
+    scorer: Option<&Scorer>,
 ) -> Result<Outcome> {
     let start = f.state(w.start).context("start frame not valid")?;
     world.set_state(&start)?;
-    for i in w.start..w.release {
-        let next = f.state(i + 1).context("window frame not valid")?;
+    let mut score = SmScore::default();
+    let mut at_release = None;
+    let last = match scorer {
+        Some(sc) => w.release + sc.frames,
+        None => w.release,
+    };
+    for i in w.start..last.min(f.frames - 1) {
+        if i == w.release {
+            at_release = Some(world.get_state());
+        }
+        let Some(next) = f.state(i + 1) else {
+            // a missing frame ends the scored part; the window's frames
+            // are all valid (push_windows)
+            anyhow::ensure!(i >= w.release, "window frame {} not valid", i + 1);
+            break;
+        };
         let rates = rates.then(|| joint_rates(&next.joint_rot, &next.joint_vel));
-        let mut t = next.joint_rot;
-        for (k, &j) in joints.iter().enumerate() {
-            for a in 0..3 {
-                t[j * 3 + a] += offset[k * 3 + a];
+        let mut t = next.joint_rot.clone();
+        if i < w.release {
+            for (k, &j) in joints.iter().enumerate() {
+                for a in 0..3 {
+                    t[j * 3 + a] += offset[k * 3 + a];
+                }
             }
         }
         match rates {
@@ -202,18 +295,59 @@ fn replay(
             Some(r) => world.apply_action_with_rates(&crate::rl::humanoid::feed_forward(&t), &r),
             None => world.set_joint_targets(&t),
         }
-        world.step();
+        match scorer {
+            Some(sc) => {
+                let c = world.step_with_contacts().reward_contacts(
+                    sc.sk.contact_penalty_bodies(),
+                    sc.opts.contact_detect,
+                    sc.opts.contact_radius,
+                );
+                let g = world.get_state();
+                let r = reward::sm_reward(&g, &next, &c, sc.sk, &sc.weights, &sc.opts, None);
+                score.steps += 1;
+                score.sum += r.total;
+                score.body += r.body;
+                score.object += r.object;
+                score.rel += r.rel;
+                score.cg += r.cg;
+            }
+            None => world.step(),
+        }
     }
-    let g = world.get_state();
+    let g = match at_release {
+        Some(g) => g,
+        None => world.get_state(),
+    };
     let r = f.state(w.release).context("release frame not valid")?;
     let dv: [f64; 3] = std::array::from_fn(|k| g.obj_linvel[k] as f64 - r.obj_linvel[k] as f64);
     let dp: f64 = (0..3)
         .map(|k| (g.obj_pos[k] as f64 - r.obj_pos[k] as f64).powi(2))
         .sum();
+    let sm = scorer.map(|_| {
+        let n = score.steps.max(1) as f64;
+        SmScore {
+            body: score.body / n,
+            object: score.object / n,
+            rel: score.rel / n,
+            cg: score.cg / n,
+            ..score
+        }
+    });
     Ok(Outcome {
         cost: dv.iter().map(|x| x * x).sum::<f64>() + 25.0 * dp,
         vel: std::array::from_fn(|k| g.obj_linvel[k] as f64),
+        sm,
     })
+}
+
+impl Outcome {
+    /// What a search minimises: the ball's cost, or the negated SM sum.
+    fn key(&self, objective: PushObjective) -> f64 {
+        match (objective, self.sm) {
+            (PushObjective::Sm, Some(s)) => -s.sum,
+            _ => self.cost,
+        }
+    }
 }
 
 /// The best offset found for one window and joint group.
@@ -223,6 +357,11 @@ pub struct PushSearch {
     pub vel: [f64; 3],
     /// Cost (module doc), m^2/s^2.
     pub cost: f64,
+    /// The SM reward of the replay over the window and
+    /// [`PushConfig::sm_frames`] frames after it (from `skillaug
+    /// check-ball`'s search; `None` where not scored, as in the warm
+    /// start's [`push_offsets`]).
+    pub sm: Option<SmScore>,
     /// Largest absolute offset, rad.
     pub max_offset: f64,
     /// Root mean square of the offset over its axes, rad.
@@ -260,6 +399,7 @@ fn summary(o: &Outcome, offset: &[f32]) -> PushSearch {
     PushSearch {
         vel: o.vel,
         cost: o.cost,
+        sm: o.sm,
         max_offset: offset.iter().fold(0f64, |m, x| m.max(x.abs() as f64)),
         rms_offset: (offset.iter().map(|x| (*x as f64).powi(2)).sum::<f64>() / n).sqrt(),
         offset: offset.to_vec(),
@@ -267,10 +407,13 @@ fn summary(o: &Outcome, offset: &[f32]) -> PushSearch {
 }
 
 /// Cross-entropy search of one window over `joints` (module doc), starting
-/// from the zero offset's outcome `replayed`. Each
-/// draw replays in its own world (rayon); draws are made in order from
-/// `rng` before they run, so the result does not depend on the thread
-/// count.
+/// from the zero offset's outcome `replayed`, minimising
+/// [`PushConfig::objective`]'s cost (the SM objective needs `scorer`, and
+/// `replayed` scored with it). Each draw replays in its own world (rayon);
+/// draws are made in order from `rng` before they run, so the result does
+/// not depend on the thread count. With a scorer, the best offset's
+/// summary carries its SM score.
+#[allow(clippy::too_many_arguments)]
 fn search(
     make: &(dyn Fn() -> Result<World> + Sync),
     f: &ClipFrames,
@@ -278,8 +421,12 @@ fn search(
     joints: &[usize],
     cfg: &PushConfig,
     replayed: &Outcome,
+    scorer: Option<&Scorer>,
     rng: &mut ChaCha8Rng,
 ) -> Result<PushSearch> {
+    let objective = cfg.objective;
+    // the ball objective's draws are short replays; the SM one scores each
+    let during = scorer.filter(|_| objective == PushObjective::Sm);
     let d = joints.len() * 3;
     let mut best = (replayed.clone(), vec![0f32; d]);
     let mut mu = vec![0f64; d];
@@ -294,9 +441,9 @@ fn search(
             .collect();
         let mut scored = draws
             .into_par_iter()
-            .map(|x| Ok((replay(&mut make()?, f, w, joints, &x, false)?, x)))
+            .map(|x| Ok((replay(&mut make()?, f, w, joints, &x, false, during)?, x)))
             .collect::<Result<Vec<_>>>()?;
-        scored.sort_by(|a, b| a.0.cost.total_cmp(&b.0.cost));
+        scored.sort_by(|a, b| a.0.key(objective).total_cmp(&b.0.key(objective)));
         let elites = &scored[..cfg.elites];
         for k in 0..d {
             let m = elites.iter().map(|e| e.1[k] as f64).sum::<f64>() / cfg.elites as f64;
@@ -309,9 +456,13 @@ fn search(
             // a floor keeps the search from collapsing onto one draw
             sd[k] = v.sqrt().max(0.01);
         }
-        if scored[0].0.cost < best.0.cost {
+        if scored[0].0.key(objective) < best.0.key(objective) {
             best = scored.swap_remove(0);
         }
+    }
+    if let (Some(sc), None) = (scorer, best.0.sm) {
+        // the ball objective's best, scored once
+        best.0.sm = replay(&mut make()?, f, w, joints, &best.1, false, Some(sc))?.sm;
     }
     Ok(summary(&best.0, &best.1))
 }
@@ -336,22 +487,24 @@ pub fn fit_pushes_of_clip(
     let hand = hand_bodies(model);
     let make = || World::new(model, objects, opts);
     let (arms, upper) = (push_joints(model, false), push_joints(model, true));
+    let scorer = Scorer::of(lib, cfg);
     let mut out = Vec::new();
     for w in push_windows(f, &hand, cfg.hand_radius, cfg.min_frames) {
         let mut rng = window_rng(seed, clip, w);
         let mut fit = || -> Result<PushFit> {
             let r = f.state(w.release).context("release frame not valid")?;
             let zero = vec![0f32; arms.len() * 3];
-            let replayed = replay(&mut make()?, f, w, &arms, &zero, false)?;
-            let with_rates = replay(&mut make()?, f, w, &arms, &zero, true)?;
+            let sc = Some(&scorer);
+            let replayed = replay(&mut make()?, f, w, &arms, &zero, false, sc)?;
+            let with_rates = replay(&mut make()?, f, w, &arms, &zero, true, sc)?;
             Ok(PushFit {
                 clip,
                 window: w,
                 vel_ref: std::array::from_fn(|k| r.obj_linvel[k] as f64),
                 replay: summary(&replayed, &zero),
                 replay_rates: summary(&with_rates, &zero),
-                arms: search(&make, f, w, &arms, cfg, &replayed, &mut rng)?,
-                upper: search(&make, f, w, &upper, cfg, &replayed, &mut rng)?,
+                arms: search(&make, f, w, &arms, cfg, &replayed, sc, &mut rng)?,
+                upper: search(&make, f, w, &upper, cfg, &replayed, sc, &mut rng)?,
             })
         };
         out.push(fit().with_context(|| format!("frames {}..{}", w.start, w.release))?);
@@ -433,8 +586,10 @@ pub fn push_offsets(
             let mut found = || -> Result<PushOffset> {
                 let r = f.state(w.release).context("release frame not valid")?;
                 let zero = vec![0f32; joints.len() * 3];
-                let replayed = replay(&mut make()?, f, w, &joints, &zero, false)?;
-                let found = search(&make, f, w, &joints, cfg, &replayed, &mut rng)?;
+                let scorer = (cfg.objective == PushObjective::Sm).then(|| Scorer::of(lib, cfg));
+                let sc = scorer.as_ref();
+                let replayed = replay(&mut make()?, f, w, &joints, &zero, false, sc)?;
+                let found = search(&make, f, w, &joints, cfg, &replayed, sc, &mut rng)?;
                 let mut offset = vec![0f32; n_joints * 3];
                 for (k, &j) in joints.iter().enumerate() {
                     offset[j * 3..j * 3 + 3].copy_from_slice(&found.offset[k * 3..k * 3 + 3]);

@@ -24,7 +24,7 @@
 use super::Common;
 use crate::sim::checks::ball_replays;
 use crate::sim::mjcf::Model;
-use crate::sim::push::{fit_pushes, PushConfig};
+use crate::sim::push::{fit_pushes, PushConfig, PushSearch};
 use anyhow::{bail, Result};
 
 fn opt(x: Option<f64>) -> String {
@@ -128,5 +128,37 @@ fn print_push_search(
     println!(
         "+ velocities: own targets with the clip's joint velocities as target velocities (train.velocity_feed_forward); offsets: RMS / largest over the searched axes; arms: shoulders, elbows, wrists; upper body: also torso, spine, chest, thorax, neck"
     );
+    println!();
+    println!(
+        "push windows: SM reward summed over the window and up to {} frames after it (the clip's own targets after the release), and its factors' means r_b / r_o / r_rel / r_cg; the search's objective: {}",
+        cfg.sm_frames,
+        match cfg.objective {
+            crate::sim::push::PushObjective::Ball => "the ball at the release",
+            crate::sim::push::PushObjective::Sm => "this SM sum",
+        }
+    );
+    println!(
+        "{:<34} {:>9}  {:>5}  {:>30}  {:>30}  {:>30}",
+        "clip", "frames", "steps", "own targets", "arms", "upper body"
+    );
+    for p in &fits {
+        let cell = |s: &PushSearch| match s.sm {
+            Some(m) => format!(
+                "{:6.2} ({:.2}/{:.2}/{:.2}/{:.2})",
+                m.sum, m.body, m.object, m.rel, m.cg
+            ),
+            None => "-".to_string(),
+        };
+        println!(
+            "{:<34} {:>4}-{:<4}  {:>5}  {:>30}  {:>30}  {:>30}",
+            lib.clips[p.clip].name,
+            p.window.start,
+            p.window.release,
+            p.replay.sm.map_or(0, |m| m.steps),
+            cell(&p.replay),
+            cell(&p.arms),
+            cell(&p.upper),
+        );
+    }
     Ok(())
 }
