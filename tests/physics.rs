@@ -585,6 +585,19 @@ fn the_sm_reward_favours_a_harder_push_than_the_clips_own_targets() {
     // targets' 9.58; full search: 7.76 at -3.75)
     assert!(b.arms.vel[2] < p.arms.vel[2], "{b:?} {p:?}");
     assert!(sum(&b.arms) < sum(&p.arms), "{b:?} {p:?}");
+    // the scores take `reward_weights`: a ball-velocity weight (Eq. 14's
+    // r_opv, 0 in the paper) lowers the own targets' sum (measured 6.89)
+    let weighted = PushConfig {
+        iterations: 0,
+        reward_weights: skillaug::reward::WeightOverrides {
+            opv: Some(0.5),
+            ..Default::default()
+        },
+        ..cfg
+    };
+    let w = fit_pushes_of_clip(&lib, c, &model, &objs, &opts, &weighted, 0).unwrap();
+    let ws = w[0].replay.sm.unwrap().sum;
+    assert!(ws < 0.9 * own.sum, "{ws} against {}", own.sum);
 }
 
 #[test]
@@ -675,6 +688,29 @@ fn a_push_search_finds_targets_that_push_harder_than_the_clips_own() {
     ]);
     let text = ok(&args);
     assert!(text.contains("push windows"), "{text}");
+    // the SM objective and its weights are settings, checked the same way
+    let mut args = base.to_vec();
+    args.extend([
+        "--set",
+        "check-ball.elites=2",
+        "--set",
+        "check-ball.objective=sm",
+        "--set",
+        "check-ball.reward_weights={ opv = -1 }",
+    ]);
+    let err = fails(&args);
+    assert!(err.contains("check-ball.reward_weights.opv"), "{err}");
+    let mut args = base.to_vec();
+    args.extend([
+        "--set",
+        "check-ball.elites=2",
+        "--set",
+        "check-ball.objective=sm",
+        "--set",
+        "check-ball.reward_weights={ opv = 0.5 }",
+    ]);
+    let text = ok(&args);
+    assert!(text.contains("objective: this SM sum"), "{text}");
 }
 
 #[test]

@@ -38,7 +38,7 @@ use super::world::{hand_bodies, joint_rates, SimOptions, World};
 use super::ObjectSpec;
 use crate::motion::clip::ClipFrames;
 use crate::motion::{MotionLib, Skeleton};
-use crate::reward::{self, DatasetKind, RewardOptions, Weights};
+use crate::reward::{self, DatasetKind, RewardOptions, WeightOverrides, Weights};
 use anyhow::{Context, Result};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -79,6 +79,10 @@ pub struct PushConfig {
     /// (the humanoid then tracks the clip's own next frames), so that the
     /// ball's bounce after the push counts.
     pub sm_frames: usize,
+    /// Replacements of the SM weights the replays are scored with
+    /// (`check-ball.reward_weights = { opv = 0.5 }`, as
+    /// `train.reward_weights`); none by default: the paper's Table 8.
+    pub reward_weights: WeightOverrides,
 }
 
 /// What a push search optimises ([`PushConfig::objective`]).
@@ -106,6 +110,7 @@ impl Default for PushConfig {
             physics: ReplayPhysics::default(),
             objective: PushObjective::Ball,
             sm_frames: 40,
+            reward_weights: WeightOverrides::default(),
         }
     }
 }
@@ -122,6 +127,7 @@ impl crate::config::Validate for PushConfig {
         c.count("iterations", self.iterations as u64, 0, 10_000)?;
         c.range("init_sd", self.init_sd, 1e-6, 10.0)?;
         c.count("sm_frames", self.sm_frames as u64, 0, 10_000)?;
+        self.reward_weights.check(stage)?;
         crate::config::Validate::validate(&self.physics, stage)
     }
 }
@@ -221,8 +227,9 @@ pub struct SmScore {
 }
 
 /// How a replay scores the SM reward ([`PushObjective::Sm`] and the
-/// table's SM columns): the skeleton, training's SM weights and reward
-/// options, and the frames after the release.
+/// table's SM columns): the skeleton, training's SM weights (with
+/// [`PushConfig::reward_weights`]) and reward options, and the frames
+/// after the release.
 #[derive(Clone, Copy)]
 struct Scorer {
     sk: Skeleton,
@@ -235,7 +242,9 @@ impl Scorer {
     fn of(lib: &MotionLib, cfg: &PushConfig) -> Scorer {
         Scorer {
             sk: lib.skeleton,
-            weights: Weights::sm(DatasetKind::of_library(lib)),
+            weights: cfg
+                .reward_weights
+                .apply(Weights::sm(DatasetKind::of_library(lib))),
             opts: RewardOptions::default(),
             frames: cfg.sm_frames,
         }
