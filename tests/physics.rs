@@ -669,47 +669,24 @@ fn a_push_search_finds_targets_that_push_harder_than_the_clips_own() {
     args.extend(["--set", "check-ball.elites=5"]);
     let err = fails(&args);
     assert!(err.contains("check-ball.elites"), "{err}");
-    // the replay physics are settings too, checked the same way
-    let mut args = base.to_vec();
-    args.extend([
-        "--set",
-        "check-ball.elites=2",
-        "--set",
-        "check-ball.physics.kp_scale=0",
-    ]);
-    let err = fails(&args);
+    // the replay physics, the SM objective and its weights are settings
+    // too, checked the same way
+    let with = |more: &[&'static str]| -> Vec<&str> {
+        let mut args = base.to_vec();
+        args.extend(["--set", "check-ball.elites=2"]);
+        for m in more {
+            args.extend(["--set", m]);
+        }
+        args
+    };
+    let err = fails(&with(&["check-ball.physics.kp_scale=0"]));
     assert!(err.contains("check-ball.physics.kp_scale"), "{err}");
-    let mut args = base.to_vec();
-    args.extend([
-        "--set",
-        "check-ball.elites=2",
-        "--set",
-        "check-ball.physics.kp_scale=4",
-    ]);
-    let text = ok(&args);
+    let text = ok(&with(&["check-ball.physics.kp_scale=4"]));
     assert!(text.contains("push windows"), "{text}");
-    // the SM objective and its weights are settings, checked the same way
-    let mut args = base.to_vec();
-    args.extend([
-        "--set",
-        "check-ball.elites=2",
-        "--set",
-        "check-ball.objective=sm",
-        "--set",
-        "check-ball.reward_weights={ opv = -1 }",
-    ]);
-    let err = fails(&args);
+    let sm = "check-ball.objective=sm";
+    let err = fails(&with(&[sm, "check-ball.reward_weights={ opv = -1 }"]));
     assert!(err.contains("check-ball.reward_weights.opv"), "{err}");
-    let mut args = base.to_vec();
-    args.extend([
-        "--set",
-        "check-ball.elites=2",
-        "--set",
-        "check-ball.objective=sm",
-        "--set",
-        "check-ball.reward_weights={ opv = 0.5 }",
-    ]);
-    let text = ok(&args);
+    let text = ok(&with(&[sm, "check-ball.reward_weights={ opv = 0.5 }"]));
     assert!(text.contains("objective: this SM sum"), "{text}");
 }
 

@@ -693,6 +693,25 @@ fn logged_noise(agent: &Agent, env: &Logged, sigma: f64) -> (Vec<Vec<f64>>, Vec<
         .unzip()
 }
 
+/// 64 rollouts of 32 steps by a fresh agent of `cfg` (seed 3) on staggered
+/// episodes of 50 steps: the agent, the logged environment, and the noise
+/// and episode ends of every step ([`logged_noise`]).
+#[allow(clippy::type_complexity)]
+fn logged_rollouts(cfg: &PpoConfig) -> (Agent, Logged, Vec<Vec<f64>>, Vec<Vec<bool>>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mut env = Logged {
+        t: (0..N_ENVS).map(|e| e % EP_LEN).collect(),
+        log: Vec::new(),
+    };
+    let agent = Agent::new(OBS_DIM, ACT_DIM, cfg, 3, &Device::Cpu).unwrap();
+    let mut tracker = EpisodeTracker::new(N_ENVS);
+    for _ in 0..64 {
+        collect(&agent, &mut env, HORIZON, &mut tracker, &mut rng).unwrap();
+    }
+    let (z, ends) = logged_noise(&agent, &env, cfg.sigma);
+    (agent, env, z, ends)
+}
+
 /// Lag-1 correlation of the noise of action dimensions `dims` within
 /// episodes and across episode starts, and their variance.
 fn noise_statistics(z: &[Vec<f64>], ends: &[Vec<bool>], dims: &[usize]) -> (f64, f64, f64) {
@@ -737,17 +756,7 @@ fn correlated_action_noise_keeps_its_direction_within_episodes_and_its_variance(
             noise_correlation: rho,
             ..small_cfg()
         };
-        let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let mut env = Logged {
-            t: (0..N_ENVS).map(|e| e % EP_LEN).collect(),
-            log: Vec::new(),
-        };
-        let agent = Agent::new(OBS_DIM, ACT_DIM, &cfg, 3, &Device::Cpu).unwrap();
-        let mut tracker = EpisodeTracker::new(N_ENVS);
-        for _ in 0..64 {
-            collect(&agent, &mut env, HORIZON, &mut tracker, &mut rng).unwrap();
-        }
-        let (z, ends) = logged_noise(&agent, &env, cfg.sigma);
+        let (agent, env, z, ends) = logged_rollouts(&cfg);
         let (within, across, var) = noise_statistics(&z, &ends, &all);
         assert!((var - 1.0).abs() < 0.05, "rho {rho}: variance {var}");
         assert!(
@@ -774,17 +783,7 @@ fn correlated_action_noise_keeps_its_direction_within_episodes_and_its_variance(
         noise_correlated_dims: vec![true, false],
         ..small_cfg()
     };
-    let mut rng = ChaCha8Rng::seed_from_u64(3);
-    let mut env = Logged {
-        t: (0..N_ENVS).map(|e| e % EP_LEN).collect(),
-        log: Vec::new(),
-    };
-    let agent = Agent::new(OBS_DIM, ACT_DIM, &cfg, 3, &Device::Cpu).unwrap();
-    let mut tracker = EpisodeTracker::new(N_ENVS);
-    for _ in 0..64 {
-        collect(&agent, &mut env, HORIZON, &mut tracker, &mut rng).unwrap();
-    }
-    let (z, ends) = logged_noise(&agent, &env, cfg.sigma);
+    let (_, _, z, ends) = logged_rollouts(&cfg);
     for (k, rho) in [(0, 0.9), (1, 0.0)] {
         let (within, _, var) = noise_statistics(&z, &ends, &[k]);
         eprintln!("dimension {k}: lag-1 {within:.3}, variance {var:.3}");
