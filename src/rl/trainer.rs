@@ -1218,7 +1218,7 @@ impl<'a> Trainer<'a> {
         if cfg.noise_correlation_joints != JointSet::All {
             on.push(format!(
                 "noise_correlation_joints=arms{}",
-                if cfg.ppo.noise_correlation.unwrap_or(0.0) > 0.0 {
+                if cfg.ppo_config().noise_correlation > 0.0 {
                     ""
                 } else {
                     " (no effect: ppo.noise_correlation is 0)"

@@ -395,7 +395,7 @@ pub struct PushFit {
     pub replay: PushSearch,
     /// The clip's own targets with its joint velocities as the drives'
     /// target velocities ([`World::apply_action_with_rates`]: the
-    /// `train.velocity_feed_forward` control).
+    /// `train.velocity_feed_forward` control); not SM-scored (`sm` None).
     pub replay_rates: PushSearch,
     /// Best offset on the arm joints.
     pub arms: PushSearch,
@@ -505,7 +505,8 @@ pub fn fit_pushes_of_clip(
             let zero = vec![0f32; arms.len() * 3];
             let sc = Some(&scorer);
             let replayed = replay(&mut make()?, f, w, &arms, &zero, false, sc)?;
-            let with_rates = replay(&mut make()?, f, w, &arms, &zero, true, sc)?;
+            // its release velocity is all the table shows of it
+            let with_rates = replay(&mut make()?, f, w, &arms, &zero, true, None)?;
             Ok(PushFit {
                 clip,
                 window: w,
