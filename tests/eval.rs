@@ -293,3 +293,59 @@ fn a_policy_that_needs_its_reference_gets_it_continued_in_every_trial_cell() {
         }
     }
 }
+
+#[test]
+fn a_policy_trained_with_a_stiffer_drive_is_evaluated_with_it() {
+    // `train.pd_stiffness_scale` travels in policy.meta.json and the
+    // evaluation builds its worlds with it: the same weights, evaluated
+    // once as trained (kp x 4) and once with the setting taken out of the
+    // description (the model's kp), give other trials
+    let (dir, run) = ingested("ballplay");
+    let from = run.to_str().unwrap();
+    let pol = dir.path().join("pol");
+    tiny_train(
+        from,
+        pol.to_str().unwrap(),
+        &[
+            "--set",
+            "train.skills=[\"run\"]",
+            "--set",
+            "train.residual_action=true",
+            "--set",
+            "train.pd_stiffness_scale=4",
+        ],
+    );
+    let meta_path = pol.join("policy.meta.json");
+    let mut meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&meta_path).unwrap()).unwrap();
+    assert_eq!(meta["train"]["pd_stiffness_scale"], 4.0);
+    let sets = [
+        "eval.trials=4",
+        "eval.envs=4",
+        "eval.steps=40",
+        "eval.metrics=[\"sr\"]",
+    ];
+    let mean_sm = |out: &std::path::Path| -> Vec<f64> {
+        let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
+        prim::<arrow::datatypes::Float64Type>(&t.batches[0], "mean_sm")
+            .values()
+            .to_vec()
+    };
+    let stiff = dir.path().join("ev-stiff");
+    eval(from, &pol, &stiff, &sets);
+    // the same evaluation again gives the same trials (so a difference
+    // below comes from the setting)
+    let again = dir.path().join("ev-again");
+    eval(from, &pol, &again, &sets);
+    assert_eq!(mean_sm(&stiff), mean_sm(&again));
+    meta["train"]
+        .as_object_mut()
+        .unwrap()
+        .remove("pd_stiffness_scale");
+    std::fs::write(&meta_path, serde_json::to_vec(&meta).unwrap()).unwrap();
+    let model = dir.path().join("ev-model");
+    eval(from, &pol, &model, &sets);
+    let (a, b) = (mean_sm(&stiff), mean_sm(&model));
+    eprintln!("mean SM per trial: kp x 4 {a:?}, the model's kp {b:?}");
+    assert_ne!(a, b);
+}

@@ -56,8 +56,9 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // thread during the update (the pending rollout and the update's
     // generator travel in the checkpoint), the object assist, fading
     // from 0.5 to 0.25 over the run (its strength follows the samples),
-    // seams matched to the simulated state, and correlated action noise
-    // (each running episode's last noise travels in the checkpoint)
+    // seams matched to the simulated state, correlated action noise
+    // (each running episode's last noise travels in the checkpoint) and a
+    // stiffer PD drive
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -107,6 +108,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.ppo.noise_correlation=0.9",
             "--set",
             "train.noise_correlation_joints=arms",
+            "--set",
+            "train.pd_stiffness_scale=2",
         ],
     );
 }
@@ -1017,6 +1020,58 @@ fn residual_actions_replay_the_reference_and_the_reference_block_follows_it() {
         let z = obs[e * od + 902];
         assert!((0.6..1.2).contains(&z), "reference root height {z}");
     }
+}
+
+#[test]
+fn a_stiffer_drive_keeps_an_open_loop_replay_nearer_its_reference() {
+    // Zero residual actions on DF (PD targets = the next reference frame,
+    // open loop) with the model's kp and with kp x 4
+    // (`train.pd_stiffness_scale`, kd kept): the drive's time constant
+    // kd/kp falls from 0.1 s to 0.025 s, and the replay tracks its
+    // reference more closely before it falls
+    let (_dir, run) = ingested("ballplay");
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        early_termination: false,
+        residual_action: true,
+        episode_length: 120,
+        ..TrainConfig::default()
+    };
+    let n = 8;
+    let mean_sm = |cfg: &TrainConfig| -> f64 {
+        let s = setup_for(&run, cfg);
+        assert_eq!(s.sim.pd_stiffness_scale, cfg.pd_stiffness_scale as f32);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
+        let zeros = vec![0f32; n * env.act_dim()];
+        let (mut sum, mut count) = (0.0, 0);
+        for _ in 0..30 {
+            env.step(&zeros, &mut rng).unwrap();
+            for r in env.sm_rewards().iter().flatten() {
+                sum += r;
+                count += 1;
+            }
+        }
+        sum / count as f64
+    };
+    let model_kp = mean_sm(&base);
+    let stiff = mean_sm(&TrainConfig {
+        pd_stiffness_scale: 4.0,
+        ..base.clone()
+    });
+    // measured: 0.228 against 0.273
+    eprintln!("mean SM over 30 open-loop steps: kp x 1 {model_kp:.3}, kp x 4 {stiff:.3}");
+    assert!(stiff > model_kp + 0.03, "{stiff} against {model_kp}");
+    // out of range: refused, naming the key
+    let from = run.to_str().unwrap();
+    let out = run.parent().unwrap().join("t");
+    let err = fails(&train_args(
+        from,
+        out.to_str().unwrap(),
+        &["--set", "train.pd_stiffness_scale=0"],
+    ));
+    assert!(err.contains("train.pd_stiffness_scale"), "{err}");
+    assert!(!out.exists(), "no output for refused settings");
 }
 
 #[test]

@@ -34,7 +34,8 @@
 //! the body names, the skillaug version, the normaliser, and for a policy
 //! trained with the history encoder (`--he`) that the last `he_dim`
 //! observation entries are its embedding, which the model takes as input
-//! and does not compute.
+//! and does not compute; for a policy trained on a stiffer character
+//! (`train.pd_stiffness_scale` other than 1) that factor on kp.
 //!
 //! Encoding: the ONNX messages ([`proto`]) are declared here by hand with
 //! `prost` derive macros and the field numbers of `onnx/onnx.proto` of the
@@ -826,6 +827,18 @@ fn metadata(
             None => "none".into(),
         },
     ));
+    if meta.train.pd_stiffness_scale != 1.0 {
+        // the policy was trained on a stiffer character: a consumer must
+        // drive the joints with the same kp to reproduce it
+        v.push((
+            "pd_stiffness_scale",
+            format!(
+                "{}: trained and evaluated with every joint's kp (the MJCF joint stiffness) \
+                 multiplied by this factor and kd unchanged (train.pd_stiffness_scale)",
+                meta.train.pd_stiffness_scale
+            ),
+        ));
+    }
     Ok(v)
 }
 
@@ -932,6 +945,12 @@ mod tests {
             assert_eq!(key("act_dim"), "156");
             assert_eq!(key("history_encoder"), "none");
             assert_eq!(key("clip_classes"), r#"{"013_018pickle_run2_5":13}"#);
+            assert!(
+                !m.metadata_props
+                    .iter()
+                    .any(|e| e.key.as_deref() == Some("pd_stiffness_scale")),
+                "the model's gains need no entry"
+            );
             let w = g
                 .initializer
                 .iter()
@@ -940,6 +959,23 @@ mod tests {
             assert_eq!(w.dims, [8, od as i64]);
             assert_eq!(w.raw_data.as_ref().unwrap().len(), 4 * 8 * od);
         }
+    }
+
+    #[test]
+    fn a_policy_of_a_stiffer_character_says_so() {
+        let sk = Skeleton::MocapHumanoid;
+        let od = obs_dim(sk, 1, 0);
+        let a = agent(od, 156, &[4], true);
+        let mut stiff = meta(sk, &["ball"], false, od);
+        stiff.train.pd_stiffness_scale = 4.0;
+        let m = policy_model(&stiff, &a).unwrap();
+        let v = m
+            .metadata_props
+            .iter()
+            .find(|e| e.key.as_deref() == Some("pd_stiffness_scale"))
+            .and_then(|e| e.value.clone())
+            .unwrap();
+        assert!(v.starts_with("4: "), "{v}");
     }
 
     #[test]

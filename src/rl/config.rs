@@ -282,6 +282,17 @@ pub struct TrainConfig {
     /// reference code. Not written when `"reference"`.
     #[serde(skip_serializing_if = "is_reference_seam")]
     pub seam_match: SeamMatch,
+    /// Factor on every joint's PD stiffness kp (kd unchanged), in training
+    /// and in the evaluation of the policy
+    /// ([`crate::sim::SimOptions::pd_stiffness_scale`]; 1 = the MJCF's
+    /// gains, as the reference code uses them). Not in the paper or the
+    /// reference code: a stronger character. Not written when 1.
+    #[serde(skip_serializing_if = "is_one_f64")]
+    pub pd_stiffness_scale: f64,
+}
+
+fn is_one_f64(x: &f64) -> bool {
+    *x == 1.0
 }
 
 fn is_zero_u64(x: &u64) -> bool {
@@ -433,6 +444,7 @@ impl Default for TrainConfig {
             object_assist_samples: 0,
             object_assist_band: 0.0,
             seam_match: SeamMatch::Reference,
+            pd_stiffness_scale: 1.0,
         }
     }
 }
@@ -513,6 +525,7 @@ impl crate::config::Validate for TrainConfig {
         c.range("seam_leave_search_s", self.seam_leave_search_s, 0.0, 60.0)?;
         c.range("object_assist", self.object_assist, 0.0, 1.0)?;
         c.range("object_assist_band", self.object_assist_band, 0.0, 10.0)?;
+        c.range("pd_stiffness_scale", self.pd_stiffness_scale, 0.1, 100.0)?;
         if self.object_assist > 0.0 && self.object_assist_samples == 0 {
             anyhow::bail!(
                 "{stage}.object_assist = {} needs {stage}.object_assist_samples > 0 (the samples over which it fades)",

@@ -144,7 +144,10 @@ impl Setup {
             }
         }
         let objects = objects::load_all(&first.objects, &root)?;
-        let sim = SimOptions::for_fps(first.fps as f64);
+        let sim = SimOptions {
+            pd_stiffness_scale: cfg.pd_stiffness_scale as f32,
+            ..SimOptions::for_fps(first.fps as f64)
+        };
         let fps = first.fps as f64;
         let (lib, edges) = if cfg.seam_leave_search_s > 0.0 {
             leave_early(lib, edges, &clips, cfg, fps)

@@ -129,6 +129,14 @@ pub struct SimOptions {
     /// as the bodies move in a step (their relative linear speed times dt,
     /// at most this distance), when that exceeds `prediction_distance`.
     pub soft_ccd: f32,
+    /// Factor on every joint's MJCF stiffness kp, damping kd unchanged
+    /// (1 = the model's gains, as SkillMimic-V2's Isaac Gym asset uses
+    /// them). rapier's implicit motor closes a position error at the rate
+    /// kp / (dt kp + kd) (`MotorModel::combine_coefficients`), so the drive's
+    /// time constant, kd/kp = 0.1 s for every BallPlay joint, becomes
+    /// 0.1 s / factor; a factor on kp and kd alike would leave it as it is
+    /// (`train.pd_stiffness_scale`, docs/simulation.md).
+    pub pd_stiffness_scale: f32,
 }
 
 impl Default for SimOptions {
@@ -153,6 +161,7 @@ impl Default for SimOptions {
             angvel_frame: AngvelFrame::Body,
             prediction_distance: 0.05,
             soft_ccd: 0.2,
+            pd_stiffness_scale: 1.0,
         }
     }
 }
@@ -195,6 +204,12 @@ impl crate::config::Validate for SimOptions {
             1.0,
         )?;
         c.range("soft_ccd", self.soft_ccd as f64, 0.0, 10.0)?;
+        c.range(
+            "pd_stiffness_scale",
+            self.pd_stiffness_scale as f64,
+            0.1,
+            100.0,
+        )?;
         Ok(())
     }
 }
@@ -561,7 +576,8 @@ impl World {
                         h.axis
                     );
                 }
-                g[a] = [h.stiffness as f32, h.damping as f32];
+                let k = opts.pd_stiffness_scale;
+                g[a] = [k * h.stiffness as f32, h.damping as f32];
             }
             let mut jb = SphericalJointBuilder::new()
                 .local_anchor1(sk.offsets[i])
