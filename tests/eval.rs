@@ -13,6 +13,20 @@ fn tiny_train(from: &str, out: &str, extra: &[&str]) {
     ok(&a);
 }
 
+/// BallPlay ingested into a temporary folder (the guard) and a tiny
+/// policy trained on its DF clips with the `--set` overrides `sets` into
+/// its `pol/`: (guard, run folder, policy folder).
+fn df_policy(sets: &[&str]) -> (tempfile::TempDir, std::path::PathBuf, std::path::PathBuf) {
+    let (dir, run) = ingested("ballplay");
+    let pol = dir.path().join("pol");
+    let mut extra = vec!["--set", "train.skills=[\"run\"]"];
+    for kv in sets {
+        extra.extend_from_slice(&["--set", kv]);
+    }
+    tiny_train(run.to_str().unwrap(), pol.to_str().unwrap(), &extra);
+    (dir, run, pol)
+}
+
 /// `skillaug eval` of policy `pol` on run `from` into `out` with `--set`
 /// overrides (each "key=value"); returns what it printed.
 fn eval(from: &str, pol: &std::path::Path, out: &std::path::Path, sets: &[&str]) -> String {
@@ -91,14 +105,8 @@ fn eval_writes_trials_and_a_summary_with_every_cell() {
 
 #[test]
 fn eval_gives_the_share_of_trials_standing_from_each_trials_first_fall() {
-    let (dir, run) = ingested("ballplay");
+    let (dir, run, pol) = df_policy(&[]);
     let from = run.to_str().unwrap();
-    let pol = dir.path().join("pol");
-    tiny_train(
-        from,
-        pol.to_str().unwrap(),
-        &["--set", "train.skills=[\"run\"]"],
-    );
     let out = dir.path().join("ev");
     eval(
         from,
@@ -300,21 +308,8 @@ fn a_policy_trained_with_a_stiffer_drive_is_evaluated_with_it() {
     // evaluation builds its worlds with it: the same weights, evaluated
     // once as trained (kp x 4) and once with the setting taken out of the
     // description (the model's kp), give other trials
-    let (dir, run) = ingested("ballplay");
+    let (dir, run, pol) = df_policy(&["train.residual_action=true", "train.pd_stiffness_scale=4"]);
     let from = run.to_str().unwrap();
-    let pol = dir.path().join("pol");
-    tiny_train(
-        from,
-        pol.to_str().unwrap(),
-        &[
-            "--set",
-            "train.skills=[\"run\"]",
-            "--set",
-            "train.residual_action=true",
-            "--set",
-            "train.pd_stiffness_scale=4",
-        ],
-    );
     let meta_path = pol.join("policy.meta.json");
     let mut meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&meta_path).unwrap()).unwrap();

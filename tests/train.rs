@@ -38,6 +38,23 @@ fn train_args<'a>(from: &'a str, out: &'a str, extra: &[&'a str]) -> Vec<&'a str
     v
 }
 
+/// `skillaug train` on run folder `run` with the `--set` overrides `sets`
+/// must fail, name `key` in its message and write nothing.
+fn refused(run: &std::path::Path, sets: &[&str], key: &str) {
+    let out = run.parent().unwrap().join("t");
+    let mut extra = Vec::new();
+    for kv in sets {
+        extra.extend_from_slice(&["--set", kv]);
+    }
+    let err = fails(&train_args(
+        run.to_str().unwrap(),
+        out.to_str().unwrap(),
+        &extra,
+    ));
+    assert!(err.contains(key), "{err}");
+    assert!(!out.exists(), "no output for refused settings");
+}
+
 #[test]
 fn a_run_killed_with_sigkill_and_resumed_matches_the_uninterrupted_run() {
     killed_and_resumed_matches_uninterrupted(false, &[]);
@@ -1063,15 +1080,11 @@ fn a_stiffer_drive_keeps_an_open_loop_replay_nearer_its_reference() {
     eprintln!("mean SM over 30 open-loop steps: kp x 1 {model_kp:.3}, kp x 4 {stiff:.3}");
     assert!(stiff > model_kp + 0.03, "{stiff} against {model_kp}");
     // out of range: refused, naming the key
-    let from = run.to_str().unwrap();
-    let out = run.parent().unwrap().join("t");
-    let err = fails(&train_args(
-        from,
-        out.to_str().unwrap(),
-        &["--set", "train.pd_stiffness_scale=0"],
-    ));
-    assert!(err.contains("train.pd_stiffness_scale"), "{err}");
-    assert!(!out.exists(), "no output for refused settings");
+    refused(
+        &run,
+        &["train.pd_stiffness_scale=0"],
+        "train.pd_stiffness_scale",
+    );
 }
 
 #[test]
@@ -1213,14 +1226,7 @@ fn the_push_warm_start_fits_the_searched_offsets_inside_push_windows() {
 
     // an unknown joint group is refused, naming the key
     let (_dir, run) = ingested("ballplay");
-    let out = run.parent().unwrap().join("t");
-    let err = fails(&train_args(
-        run.to_str().unwrap(),
-        out.to_str().unwrap(),
-        &["--set", "train.warm_start_push=hands"],
-    ));
-    assert!(err.contains("warm_start_push"), "{err}");
-    assert!(!out.exists(), "no output for refused settings");
+    refused(&run, &["train.warm_start_push=hands"], "warm_start_push");
 }
 
 #[test]
@@ -1343,31 +1349,19 @@ fn the_object_assist_pulls_the_ball_along_its_reference_and_fades_out() {
     assert_eq!(cfg.object_assist_at(1000), 0.0);
     assert_eq!(cfg.object_assist_at(5000), 0.0);
     assert_eq!(TrainConfig::default().object_assist_at(0), 0.0);
-    let from = run.to_str().unwrap();
-    let out = run.parent().unwrap().join("t");
-    let err = fails(&train_args(
-        from,
-        out.to_str().unwrap(),
-        &["--set", "train.object_assist=0.5"],
-    ));
-    assert!(err.contains("train.object_assist_samples"), "{err}");
-    assert!(!out.exists(), "no output for refused settings");
-    let err = fails(&train_args(
-        from,
-        out.to_str().unwrap(),
-        &[
-            "--set",
-            "train.object_assist=1.5",
-            "--set",
-            "train.object_assist_samples=10",
-        ],
-    ));
-    assert!(err.contains("train.object_assist"), "{err}");
-    let err = fails(&train_args(
-        from,
-        out.to_str().unwrap(),
-        &["--set", "train.object_assist_band=-0.1"],
-    ));
-    assert!(err.contains("train.object_assist_band"), "{err}");
-    assert!(!out.exists(), "no output for refused settings");
+    refused(
+        &run,
+        &["train.object_assist=0.5"],
+        "train.object_assist_samples",
+    );
+    refused(
+        &run,
+        &["train.object_assist=1.5", "train.object_assist_samples=10"],
+        "train.object_assist",
+    );
+    refused(
+        &run,
+        &["train.object_assist_band=-0.1"],
+        "train.object_assist_band",
+    );
 }
