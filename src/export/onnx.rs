@@ -885,6 +885,14 @@ mod tests {
         Agent::new(od, ad, &cfg, 1, &Device::Cpu).unwrap()
     }
 
+    /// The value of metadata entry `key` of `m`, if it has one.
+    fn prop(m: &ModelProto, key: &str) -> Option<String> {
+        m.metadata_props
+            .iter()
+            .find(|e| e.key.as_deref() == Some(key))
+            .and_then(|e| e.value.clone())
+    }
+
     #[test]
     fn the_layouts_cover_the_observation_and_the_action() {
         for (sk, objects) in [(Skeleton::MocapHumanoid, 1), (Skeleton::ParaHome, 2)] {
@@ -919,7 +927,7 @@ mod tests {
                 .unwrap()
                 .encode_to_vec();
             let m = ModelProto::decode(bytes.as_slice()).unwrap();
-            let g = m.graph.unwrap();
+            let g = m.graph.as_ref().unwrap();
             let ops: Vec<&str> = g
                 .node
                 .iter()
@@ -934,21 +942,14 @@ mod tests {
             }
             assert_eq!(g.node.last().unwrap().output, [OUTPUT]);
             assert_eq!(g.input[0].name.as_deref(), Some(INPUT));
-            let key = |k: &str| {
-                m.metadata_props
-                    .iter()
-                    .find(|e| e.key.as_deref() == Some(k))
-                    .and_then(|e| e.value.clone())
-                    .unwrap()
-            };
+            let key = |k: &str| prop(&m, k).unwrap();
             assert_eq!(key("obs_dim"), "902");
             assert_eq!(key("act_dim"), "156");
             assert_eq!(key("history_encoder"), "none");
             assert_eq!(key("clip_classes"), r#"{"013_018pickle_run2_5":13}"#);
-            assert!(
-                !m.metadata_props
-                    .iter()
-                    .any(|e| e.key.as_deref() == Some("pd_stiffness_scale")),
+            assert_eq!(
+                prop(&m, "pd_stiffness_scale"),
+                None,
                 "the model's gains need no entry"
             );
             let w = g
@@ -969,12 +970,7 @@ mod tests {
         let mut stiff = meta(sk, &["ball"], false, od);
         stiff.train.pd_stiffness_scale = 4.0;
         let m = policy_model(&stiff, &a).unwrap();
-        let v = m
-            .metadata_props
-            .iter()
-            .find(|e| e.key.as_deref() == Some("pd_stiffness_scale"))
-            .and_then(|e| e.value.clone())
-            .unwrap();
+        let v = prop(&m, "pd_stiffness_scale").unwrap();
         assert!(v.starts_with("4: "), "{v}");
     }
 
@@ -984,12 +980,8 @@ mod tests {
         let od = obs_dim(sk, 1, 3);
         let a = agent(od, 156, &[4], true);
         let m = policy_model(&meta(sk, &["ball"], true, od), &a).unwrap();
-        let he = m
-            .metadata_props
-            .iter()
-            .find(|e| e.key.as_deref() == Some("history_encoder"))
-            .unwrap();
-        assert!(he.value.as_deref().unwrap().contains("last 3 entries"));
+        let he = prop(&m, "history_encoder").unwrap();
+        assert!(he.contains("last 3 entries"), "{he}");
         // the same observation without an encoder in the description
         let e = policy_model(&meta(sk, &["ball"], false, od), &a).unwrap_err();
         assert!(e.to_string().contains("no history encoder"), "{e}");
