@@ -110,7 +110,7 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "--set",
             "train.term_object_error=0.75",
             "--set",
-            "train.reward_weights={ opv = 0.5, op = 2.0 }",
+            "train.reward_weights={ opv = 0.5, op = 2.0, oe = 0.01 }",
             "--set",
             "train.overlap_rollout=true",
             "--set",

@@ -90,6 +90,10 @@ pub struct Weights {
     pub rel: f64,
     /// Contact graph: ball-hands, ball-body, body-hands.
     pub cg: [f64; 3],
+    /// Object mechanical energy per unit mass, (kg/J)^2 ([`Errors::oe`]):
+    /// not a term of the paper (0 in every preset).
+    #[serde(default)]
+    pub oe: f64,
 }
 
 impl Weights {
@@ -106,6 +110,7 @@ impl Weights {
             orv: 0.0,
             rel: 0.0,
             cg: [0.0; 3],
+            oe: 0.0,
         };
         match kind {
             DatasetKind::BallPlay => Weights {
@@ -135,6 +140,7 @@ impl Weights {
             orv: 0.0,
             rel: 0.0,
             cg: [0.0; 3],
+            oe: 0.0,
             ..self
         }
     }
@@ -158,6 +164,7 @@ impl Weights {
             orv: 0.0,
             rel: 0.0,
             cg: [0.0; 3],
+            oe: 0.0,
         }
     }
 }
@@ -203,6 +210,11 @@ pub struct WeightOverrides {
     /// Contact graph: ball-hands, ball-body, body-hands.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cg: Option<[f64; 3]>,
+    /// Object mechanical energy per unit mass, (kg/J)^2 ([`Errors::oe`]; not
+    /// in the paper): scores a push by the bounce it buys, whatever the
+    /// ball's phase.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub oe: Option<f64>,
 }
 
 impl WeightOverrides {
@@ -224,6 +236,7 @@ impl WeightOverrides {
             orv: self.orv.unwrap_or(w.orv),
             rel: self.rel.unwrap_or(w.rel),
             cg: self.cg.unwrap_or(w.cg),
+            oe: self.oe.unwrap_or(w.oe),
         }
     }
 
@@ -243,6 +256,7 @@ impl WeightOverrides {
             ("opv", self.opv),
             ("orv", self.orv),
             ("rel", self.rel),
+            ("oe", self.oe),
             ("cg[0]", Some(cg[0])),
             ("cg[1]", Some(cg[1])),
             ("cg[2]", Some(cg[2])),
@@ -364,7 +378,8 @@ impl Default for RewardOptions {
 pub struct SmTerms {
     /// r_p r_r r_pv r_rv (and the smoothness factor when enabled).
     pub body: f64,
-    /// r_op r_or r_opv r_orv.
+    /// r_op r_or r_opv r_orv (and the energy factor, [`Errors::oe`], when
+    /// weighted).
     pub object: f64,
     /// r_rel.
     pub rel: f64,
@@ -458,6 +473,30 @@ pub struct Errors {
     pub orv: f64,
     /// Relative motion.
     pub rel: f64,
+    /// Object mechanical energy per unit mass, (J/kg)^2: the mean over
+    /// objects of (E_sim - E_ref)^2 with E = g z + |v|^2 / 2 (z the
+    /// centre's height, m; v its velocity, m/s; g = [`GRAVITY`]). Nothing in
+    /// the paper: a ball in free flight keeps its E, so after a push the
+    /// error says how much bounce the push bought, whether or not the ball
+    /// is where the clip has it at that step; both balls lose the same
+    /// share at a bounce.
+    pub oe: f64,
+}
+
+/// Gravity's acceleration, m/s^2; the simulation's worlds use it too
+/// (`src/sim/world.rs`).
+pub const GRAVITY: f64 = 9.81;
+
+/// Mechanical energy per unit mass of each object, J/kg: g z + |v|^2 / 2
+/// from `obj_pos` and `obj_linvel` (3 values per object).
+fn object_energies(s: &State) -> impl Iterator<Item = f64> + '_ {
+    s.obj_pos
+        .chunks_exact(3)
+        .zip(s.obj_linvel.chunks_exact(3))
+        .map(|(p, v)| {
+            let v2: f64 = v.iter().map(|x| (*x as f64).powi(2)).sum();
+            GRAVITY * p[2] as f64 + 0.5 * v2
+        })
 }
 
 /// Errors of `sim` against `reference`, raw root exp-maps.
@@ -488,6 +527,7 @@ pub fn errors_with(sim: &State, reference: &State, sk: Skeleton, root: RootRot) 
         opv: mse(f(&sim.obj_linvel), f(&reference.obj_linvel)),
         orv: mse(f(&sim.obj_angvel), f(&reference.obj_angvel)),
         rel: mse(relative(sim, sk), relative(reference, sk)),
+        oe: mse(object_energies(sim), object_energies(reference)),
     }
 }
 
@@ -496,7 +536,7 @@ fn body_factor(e: &Errors, w: &Weights) -> f64 {
 }
 
 fn object_factor(e: &Errors, w: &Weights) -> f64 {
-    (-w.op * e.op - w.or * e.or - w.opv * e.opv - w.orv * e.orv).exp()
+    (-w.op * e.op - w.or * e.or - w.opv * e.opv - w.orv * e.orv - w.oe * e.oe).exp()
 }
 
 /// The reference code's hidden smoothness factor (Ingrid789/SkillMimic-V2

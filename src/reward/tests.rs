@@ -110,6 +110,52 @@ fn terms_follow_the_exponential_of_the_weighted_mse() {
 }
 
 #[test]
+fn the_energy_term_scores_the_bounce_bought_not_the_phase() {
+    // reference ball: 0.5 m high, falling at 1 m/s: E = 9.81 * 0.5 + 0.5
+    let r = state(3);
+    let e_ref = GRAVITY * 0.5 + 0.5;
+    // the same flight a moment later: 0.2 m lower and as much faster as
+    // free fall makes it, so its energy is the reference's
+    let mut later = r.clone();
+    later.obj_pos[2] = 0.3;
+    let vz = -(1.0 + 2.0 * GRAVITY * 0.2).sqrt();
+    later.obj_linvel[2] = vz as f32;
+    let e = errors(&later, &r, SK);
+    assert!(e.op > 0.01, "{e:?}"); // the position term sees the phase...
+    assert!(e.oe < 1e-6, "{e:?}"); // ...the energy term does not
+                                   // a ball pushed too softly: same place, 1 m/s slower down
+    let mut soft = r.clone();
+    soft.obj_linvel[2] = 0.0;
+    let e = errors(&soft, &r, SK);
+    assert!(
+        (e.oe - (e_ref - GRAVITY * 0.5).powi(2)).abs() < 1e-9,
+        "{e:?}"
+    );
+    // weight 0 (every preset) leaves the reward as it was; a weight lowers
+    // the object factor by exp(-w * oe) exactly
+    let c = Contacts::of_reference(&r);
+    let o = RewardOptions::default();
+    let paper = Weights::sm(DatasetKind::BallPlay);
+    assert_eq!(paper.oe, 0.0);
+    let heavy = WeightOverrides {
+        oe: Some(0.04),
+        ..Default::default()
+    }
+    .apply(paper);
+    let a = sm_reward(&soft, &r, &c, SK, &paper, &o, None);
+    let b = sm_reward(&soft, &r, &c, SK, &heavy, &o, None);
+    assert!((b.object / a.object - (-0.04 * e.oe).exp()).abs() < 1e-12);
+    assert_eq!((a.body, a.rel, a.cg), (b.body, b.rel, b.cg));
+    // a negative weight is refused with its key
+    let bad = WeightOverrides {
+        oe: Some(-1.0),
+        ..Default::default()
+    };
+    let err = bad.check("train").unwrap_err().to_string();
+    assert!(err.contains("train.reward_weights.oe"), "{err}");
+}
+
+#[test]
 fn alignment_removes_horizontal_offsets_and_turns() {
     let a = state(3);
     // Move b by (3, -1) and turn it by 0.7 rad about a's root.

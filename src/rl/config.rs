@@ -238,7 +238,8 @@ pub struct TrainConfig {
     #[serde(skip_serializing_if = "is_zero_f64")]
     pub term_object_error: f64,
     /// Replacements of the training reward's weights, for example
-    /// `{ opv = 0.5 }` ([`crate::reward::WeightOverrides`]); empty = the
+    /// `{ opv = 0.5 }` or `{ oe = 0.01 }` ([`crate::reward::WeightOverrides`],
+    /// `oe` for the SM reward only); empty = the
     /// paper's Table 8 (SM) or Table 9 (DM). Not written when empty.
     #[serde(default, skip_serializing_if = "WeightOverrides::is_empty")]
     pub reward_weights: WeightOverrides,

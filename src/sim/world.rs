@@ -488,7 +488,7 @@ impl World {
         }
         crate::config::Validate::validate(opts, "sim")?;
         let mut pw = PhysicsWorld::new();
-        pw.gravity = Vector::new(0.0, 0.0, -9.81);
+        pw.gravity = Vector::new(0.0, 0.0, -(crate::reward::GRAVITY as f32));
         let ip = &mut pw.integration_parameters;
         ip.set_inv_dt(opts.physics_hz as f32);
         ip.num_solver_iterations = opts.solver_iterations.max(1);
