@@ -121,9 +121,10 @@ fn the_energy_term_scores_the_bounce_bought_not_the_phase() {
     let vz = -(1.0 + 2.0 * GRAVITY * 0.2).sqrt();
     later.obj_linvel[2] = vz as f32;
     let e = errors(&later, &r, SK);
-    assert!(e.op > 0.01, "{e:?}"); // the position term sees the phase...
-    assert!(e.oe < 1e-6, "{e:?}"); // ...the energy term does not
-                                   // a ball pushed too softly: same place, 1 m/s slower down
+    // the position term sees the phase, the energy term does not
+    assert!(e.op > 0.01, "{e:?}");
+    assert!(e.oe < 1e-6, "{e:?}");
+    // a ball pushed too softly: the same place, 1 m/s slower down
     let mut soft = r.clone();
     soft.obj_linvel[2] = 0.0;
     let e = errors(&soft, &r, SK);
