@@ -5,21 +5,25 @@ Usage: python3 stages/ball_energy.py RUN_FOLDER EVAL_FOLDER
 
 RUN_FOLDER is the `skillaug ingest` output (frames.parquet); EVAL_FOLDER
 holds eval_rollouts.parquet from `skillaug eval ... --record N`. For every
-recorded step that is scored against a clip frame (not masked) it computes
-the energy per unit mass E = g z + |v|^2 / 2, J/kg, of the simulated ball
-(v by finite differences of the recorded positions over one policy step,
-1/60 s) and of the clip's ball at that frame (its stored velocity; the
-continued reference is moved about the vertical only, so z and |v| are the
-clip's), and prints the mean and RMS of E - E_ref per 25 steps, over all
-recorded trials: the gap that `train.reward_weights = { oe = W }` scores
-(src/reward/mod.rs, `Errors::oe`). Needs pyarrow only.
+recorded step that is scored against a clip frame (not masked) and follows
+a recorded step of the same trial, it computes the energy per unit mass
+E = g z + |v|^2 / 2, J/kg, of the first object (the ball) in the
+simulation (v by the difference of the recorded positions over one policy
+step, 1/60 s) and in the clip at that frame (its stored velocity, also a
+backward difference; the continued reference is moved about the vertical
+only, so z and |v| are the clip's, except in the blended steps of
+`train.seam_blend_steps`). It prints the mean and RMS of E - E_ref per 25
+steps over the recorded trials of every cell: close to the gap that
+`train.reward_weights = { oe = W }` scores (src/reward/mod.rs,
+`Errors::oe`, which takes the simulated ball's own velocity). The first
+bin starts at the first step with an earlier one. Needs pyarrow only.
 """
 import math
 import sys
 
 import pyarrow.parquet as pq
 
-G = 9.81
+G = 9.81  # the simulation's gravity, m/s^2 (src/sim/world.rs, GRAVITY)
 STEP_S = 1.0 / 60.0
 
 
@@ -37,13 +41,16 @@ def main():
     r = pq.read_table(f"{ev}/eval_rollouts.parquet").to_pydict()
     trials = {}
     for i in range(len(r["step"])):
-        trials.setdefault((r["metric"][i], r["trial"][i]), []).append(i)
+        cell = (r["metric"][i], r["from_skill"][i], r["to_skill"][i], r["trial"][i])
+        trials.setdefault(cell, []).append(i)
     gaps = {}
     for rows in trials.values():
         rows.sort(key=lambda i: r["step"][i])
         for a, b in zip(rows, rows[1:]):
+            if r["step"][b] != r["step"][a] + 1 or r["masked"][b]:
+                continue
             clip, frame = r["ref_clip"][b], r["ref_frame"][b]
-            if r["masked"][b] or clip is None or (clip, frame) not in ref:
+            if clip is None or (clip, frame) not in ref:
                 continue
             p0, p1 = r["obj_pos"][a][:3], r["obj_pos"][b][:3]
             if len(p0) < 3 or len(p1) < 3:

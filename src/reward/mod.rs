@@ -36,6 +36,7 @@
 
 use crate::motion::quat;
 use crate::motion::{Skeleton, State};
+use crate::sim::world::GRAVITY;
 use serde::{Deserialize, Serialize};
 
 /// Which table row of weights applies.
@@ -475,17 +476,15 @@ pub struct Errors {
     pub rel: f64,
     /// Object mechanical energy per unit mass, (J/kg)^2: the mean over
     /// objects of (E_sim - E_ref)^2 with E = g z + |v|^2 / 2 (z the
-    /// centre's height, m; v its velocity, m/s; g = [`GRAVITY`]). Nothing in
-    /// the paper: a ball in free flight keeps its E, so after a push the
-    /// error says how much bounce the push bought, whether or not the ball
-    /// is where the clip has it at that step; both balls lose the same
-    /// share at a bounce.
+    /// centre's height, m; v its velocity, m/s; g the simulation's
+    /// [`GRAVITY`]). Nothing in the paper: a ball in free flight keeps its
+    /// E, so after a push the error says how much bounce the push bought,
+    /// whether or not the ball is where the clip has it at that step. The
+    /// clip's E is only nearly constant in flight, since its stored
+    /// velocity is a backward difference of positions (`obj_linvel`,
+    /// `src/motion/clip.rs`).
     pub oe: f64,
 }
-
-/// Gravity's acceleration, m/s^2; the simulation's worlds use it too
-/// (`src/sim/world.rs`).
-pub const GRAVITY: f64 = 9.81;
 
 /// Mechanical energy per unit mass of each object, J/kg: g z + |v|^2 / 2
 /// from `obj_pos` and `obj_linvel` (3 values per object).

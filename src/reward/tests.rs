@@ -132,21 +132,34 @@ fn the_energy_term_scores_the_bounce_bought_not_the_phase() {
         (e.oe - (e_ref - GRAVITY * 0.5).powi(2)).abs() < 1e-9,
         "{e:?}"
     );
-    // weight 0 (every preset) leaves the reward as it was; a weight lowers
-    // the object factor by exp(-w * oe) exactly
+    // two objects: the mean of their squared gaps (the second one exact)
+    let mut two_ref = r.clone();
+    two_ref.obj_pos.extend([0.0, 0.0, 1.0]);
+    two_ref.obj_linvel.extend([0.0, 2.0, 0.0]);
+    let mut two = soft.clone();
+    two.obj_pos.extend([5.0, 5.0, 1.0]);
+    two.obj_linvel.extend([2.0, 0.0, 0.0]);
+    let e2 = errors(&two, &two_ref, SK);
+    assert!((e2.oe - e.oe / 2.0).abs() < 1e-9, "{e2:?}");
+    // weight 0 (every preset) gives the same reward bit for bit; a weight
+    // lowers the object factor by exp(-w * oe)
     let c = Contacts::of_reference(&r);
     let o = RewardOptions::default();
     let paper = Weights::sm(DatasetKind::BallPlay);
     assert_eq!(paper.oe, 0.0);
-    let heavy = WeightOverrides {
-        oe: Some(0.04),
-        ..Default::default()
-    }
-    .apply(paper);
+    let with = |w: f64| {
+        let ws = WeightOverrides {
+            oe: Some(w),
+            ..Default::default()
+        }
+        .apply(paper);
+        sm_reward(&soft, &r, &c, SK, &ws, &o, None)
+    };
     let a = sm_reward(&soft, &r, &c, SK, &paper, &o, None);
-    let b = sm_reward(&soft, &r, &c, SK, &heavy, &o, None);
+    assert_eq!(with(0.0), a);
+    let b = with(0.04);
     assert!((b.object / a.object - (-0.04 * e.oe).exp()).abs() < 1e-12);
-    assert_eq!((a.body, a.rel, a.cg), (b.body, b.rel, b.cg));
+    assert!(b.total < a.total);
     // a negative weight is refused with its key
     let bad = WeightOverrides {
         oe: Some(-1.0),

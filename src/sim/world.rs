@@ -480,6 +480,10 @@ fn geom_collider(g: &super::mjcf::Geom, body: &str) -> Result<ColliderBuilder> {
     Ok(c.density(density))
 }
 
+/// Gravity's acceleration, m/s^2, along -z in every world (the reward's
+/// ball-energy term uses it too, `crate::reward::Errors::oe`).
+pub const GRAVITY: f64 = 9.81;
+
 impl World {
     /// Build a world from a humanoid model and objects.
     pub fn new(model: &Model, objects: &[ObjectSpec], opts: &SimOptions) -> Result<World> {
@@ -488,7 +492,7 @@ impl World {
         }
         crate::config::Validate::validate(opts, "sim")?;
         let mut pw = PhysicsWorld::new();
-        pw.gravity = Vector::new(0.0, 0.0, -(crate::reward::GRAVITY as f32));
+        pw.gravity = Vector::new(0.0, 0.0, -(GRAVITY as f32));
         let ip = &mut pw.integration_parameters;
         ip.set_inv_dt(opts.physics_hz as f32);
         ip.num_solver_iterations = opts.solver_iterations.max(1);
