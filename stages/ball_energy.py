@@ -3,7 +3,7 @@
 
 Usage: python3 stages/ball_energy.py RUN_FOLDER EVAL_FOLDER
 
-RUN_FOLDER is the `skillaug ingest` output (frames.parquet); EVAL_FOLDER
+RUN_FOLDER is the `skillaug ingest` output (clips.parquet, frames.parquet); EVAL_FOLDER
 holds eval_rollouts.parquet from `skillaug eval ... --record N`. For every
 recorded step that is scored against a clip frame (not masked) and follows
 a recorded step of the same trial, it computes the energy per unit mass
@@ -33,6 +33,8 @@ def energy(p, v):
 
 def main():
     run, ev = sys.argv[1], sys.argv[2]
+    # a rollout's ref_clip is the clip's row in clips.parquet, as in bounce_times.py
+    clip_ids = pq.read_table(f"{run}/clips.parquet").column("clip_id").to_pylist()
     f = pq.read_table(f"{run}/frames.parquet", columns=["clip_id", "frame", "obj_pos", "obj_linvel"]).to_pydict()
     ref = {}
     for c, i, p, v in zip(f["clip_id"], f["frame"], f["obj_pos"], f["obj_linvel"]):
@@ -50,13 +52,13 @@ def main():
             if r["step"][b] != r["step"][a] + 1 or r["masked"][b]:
                 continue
             clip, frame = r["ref_clip"][b], r["ref_frame"][b]
-            if clip is None or (clip, frame) not in ref:
+            if clip is None or (clip_ids[clip], frame) not in ref:
                 continue
             p0, p1 = r["obj_pos"][a][:3], r["obj_pos"][b][:3]
             if len(p0) < 3 or len(p1) < 3:
                 continue
             v = [(y - x) / STEP_S for x, y in zip(p0, p1)]
-            gaps.setdefault(r["step"][b] // 25, []).append(energy(p1, v) - ref[(clip, frame)])
+            gaps.setdefault(r["step"][b] // 25, []).append(energy(p1, v) - ref[(clip_ids[clip], frame)])
     if not gaps:
         sys.exit(f"{ev}/eval_rollouts.parquet: no recorded step with a ball and a clip frame")
     print("steps     mean E - E_ref  RMS     n   (J/kg)")
