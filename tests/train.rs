@@ -74,8 +74,9 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // generator travel in the checkpoint), the object assist, fading
     // from 0.5 to 0.25 over the run (its strength follows the samples),
     // seams matched to the simulated state, correlated action noise
-    // (each running episode's last noise travels in the checkpoint) and a
-    // stiffer PD drive
+    // (each running episode's last noise travels in the checkpoint), a
+    // stiffer PD drive and a reference clock that follows the ball (its
+    // waits and skips are rebuilt by the replay of each episode's actions)
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -127,6 +128,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.noise_correlation_joints=arms",
             "--set",
             "train.pd_stiffness_scale=2",
+            "--set",
+            "train.ball_clock_frames=8",
         ],
     );
 }
@@ -722,6 +725,124 @@ fn seams_matched_to_the_simulation_continue_at_the_frame_nearest_the_character_a
     assert!(
         off_own_seam > 0,
         "every seam matched the clip's own, {seams_seen} seams"
+    );
+}
+
+#[test]
+fn a_reference_whose_clock_follows_the_ball_waits_or_runs_ahead_by_the_bounce_phase() {
+    // 200-step DF episodes with zero actions and `ball_clock_frames = 6`:
+    // after every step the reference is the clip's next frame, the one
+    // before it or the one after it, as the simulated ball's phase lead
+    // over the next frame's ball says (recomputed here from the state
+    // after the step and the clip's frame), never more than 6 frames net
+    // between seams; the ball the character drops runs out of phase, so
+    // the reference both waits and runs ahead
+    use skillaug::rl::humanoid::{ball_phase_lead, reference_ball};
+    let most = 6i64;
+    let cfg = TrainConfig {
+        skills: vec!["run".into()],
+        episode_length: 200,
+        early_termination: false,
+        ball_clock_frames: most as usize,
+        ..TrainConfig::default()
+    };
+    let (_dir, run) = ingested("ballplay");
+    let s = setup_for(&run, &cfg);
+    refused(
+        &run,
+        &["train.ball_clock_frames=20000"],
+        "train.ball_clock_frames",
+    );
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    let n = 4;
+    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+    env.set_recording(true);
+    let zeros = vec![0f32; n * env.act_dim()];
+    let mut trace: Vec<Vec<_>> = vec![Vec::new(); n];
+    let mut ended = vec![false; n];
+    for _ in 0..200 {
+        let r = env.step(&zeros, &mut rng).unwrap();
+        let recs = env.take_recorded();
+        for e in 0..n {
+            if ended[e] {
+                continue;
+            }
+            let rec = recs[e].as_ref().unwrap();
+            trace[e].push((rec.reference, env.state_of(e).unwrap()));
+            ended[e] = r.terminated[e] || r.truncated[e];
+        }
+    }
+    let rest = skillaug::sim::objects::BALL_RADIUS;
+    let (mut waits, mut skips, mut at_bound, mut exact) = (0, 0, 0, 0);
+    for t in &trace {
+        assert_eq!(t.len(), 200, "every episode lasts episode_length steps");
+        // net frames since the last seam (unknown before the first: the
+        // start's frame is not seen); the last reference, `None` when masked
+        let mut drift: Option<i64> = None;
+        let mut prev: Option<(u32, u32)> = None;
+        // (after the last step the environment has reset: its state is
+        // the next episode's start)
+        for (k, (reference, st)) in t.iter().enumerate().take(t.len() - 1) {
+            let Some((c1, f1)) = *reference else {
+                prev = None;
+                continue;
+            };
+            let Some((c0, f0)) = prev.replace((c1, f1)) else {
+                continue;
+            };
+            let df = f1 as i64 - f0 as i64 - 1;
+            if c1 != c0 || !(-1..=1).contains(&df) {
+                // a seam (N = 0 here, Eq. 20 at these seams): the
+                // reference continues at the seam frame's successor, or
+                // one further when the clock ran ahead on that step
+                let seam = s.seams[c0 as usize].unwrap();
+                assert_eq!(c1, seam.to_clip, "step {k}");
+                let ahead = f1 as i64 - seam.to_frame as i64 - 1;
+                assert!((0..=1).contains(&ahead), "step {k}: seam frame {f1}");
+                drift = Some(ahead);
+                continue;
+            }
+            let frames = &s.lib.frames[c1 as usize];
+            let next = (f0 + 1) as usize;
+            let fps = s.lib.clips[c1 as usize].fps;
+            let ball = reference_ball(frames, next, fps);
+            let lead = ball_phase_lead((st.obj_pos[2], st.obj_linvel[2]), ball, rest);
+            let half = 0.5 / fps as f64;
+            if df == 1 {
+                assert!(lead > half, "step {k}: ran ahead at lead {lead} s");
+            }
+            if df == -1 {
+                assert!(lead < -half, "step {k}: waited at lead {lead} s");
+            }
+            // the reference's list ends at the episode's length, so near the
+            // end a skip may lack a frame: the exact check stops 50 steps
+            // before (the net drift of the whole episode, at most `most`
+            // per segment of about 40 steps, stays below that)
+            if let Some(d) = drift.as_mut().filter(|_| k < 150) {
+                let can_skip = *d < most && next < frames.last_valid().unwrap();
+                let can_wait = *d > -most;
+                let want = if lead > half && can_skip {
+                    1
+                } else if lead < -half && can_wait {
+                    -1
+                } else {
+                    0
+                };
+                assert_eq!(df, want, "step {k}: lead {lead} s, drift {d}");
+                at_bound += ((lead > half && *d == most) || (lead < -half && *d == -most)) as usize;
+                *d += df;
+                assert!(d.abs() <= most, "drift {d}");
+                exact += 1;
+            }
+            waits += (df == -1) as usize;
+            skips += (df == 1) as usize;
+        }
+    }
+    assert!(exact > 200, "{exact} steps checked against the rule");
+    assert!(waits > 0 && skips > 0, "{waits} waits and {skips} skips");
+    assert!(
+        at_bound > 0,
+        "the drift bound never held the reference back"
     );
 }
 

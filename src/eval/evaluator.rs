@@ -382,6 +382,7 @@ pub fn plan_cells(
         seam_blend_steps: t.seam_blend_steps,
         seam_masked_min: t.seam_masked_min,
         seam_match: t.seam_match,
+        ball_clock_frames: t.ball_clock_frames,
         ..EnvConfig::training(t.method)
     };
     let class_of = |skill: &str| -> u32 {

@@ -290,6 +290,13 @@ pub struct TrainConfig {
     /// reference code: a stronger character. Not written when 1.
     #[serde(skip_serializing_if = "is_one_f64")]
     pub pd_stiffness_scale: f64,
+    /// Most frames a reference may run ahead of or behind the policy's
+    /// clock between two seams when its clock follows the ball (0 = off,
+    /// the clip's clock; [`crate::rl::humanoid::EnvConfig::ball_clock_frames`]),
+    /// in training and in the evaluation of the policy. Not in the paper
+    /// or the reference code. Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_usize")]
+    pub ball_clock_frames: usize,
 }
 
 fn is_one_f64(x: &f64) -> bool {
@@ -446,6 +453,7 @@ impl Default for TrainConfig {
             object_assist_band: 0.0,
             seam_match: SeamMatch::Reference,
             pd_stiffness_scale: 1.0,
+            ball_clock_frames: 0,
         }
     }
 }
@@ -527,6 +535,12 @@ impl crate::config::Validate for TrainConfig {
         c.range("object_assist", self.object_assist, 0.0, 1.0)?;
         c.range("object_assist_band", self.object_assist_band, 0.0, 10.0)?;
         c.range("pd_stiffness_scale", self.pd_stiffness_scale, 0.1, 100.0)?;
+        c.count(
+            "ball_clock_frames",
+            self.ball_clock_frames as u64,
+            0,
+            10_000,
+        )?;
         if self.object_assist > 0.0 && self.object_assist_samples == 0 {
             anyhow::bail!(
                 "{stage}.object_assist = {} needs {stage}.object_assist_samples > 0 (the samples over which it fades)",

@@ -74,7 +74,7 @@ use crate::nn::he::{self, HistoryEncoder};
 use crate::nn::he_kernel::{EncoderCache, EncoderKernel};
 use crate::reward::{self, DatasetKind, RewardOptions, Weights};
 use crate::sim::mjcf::Model;
-use crate::sim::world::{rotation_of, vector_of, Spring};
+use crate::sim::world::{rotation_of, vector_of, Spring, GRAVITY};
 use crate::sim::{ContactReport, ObjectSpec, SimOptions, World};
 use anyhow::{bail, ensure, Context, Result};
 use rand_chacha::ChaCha8Rng;
@@ -239,6 +239,72 @@ pub struct EnvConfig {
     /// ends ([`SeamMatch`]): the clip's precomputed seam, or the skill's
     /// frame most similar to the simulated state at that step.
     pub seam_match: SeamMatch,
+    /// The reference's clock follows the ball (0 = off, the clip's clock):
+    /// after every policy step the reference frame the step is scored
+    /// against, and whose successor the next step's feed-forward and
+    /// observation show, is the clip's next frame, or the one before it
+    /// (the reference waits) when object 0's bounce is more than half a
+    /// frame behind that frame's ball ([`ball_phase_lead`]), or the one
+    /// after it (the reference runs ahead) when it is more than half a
+    /// frame ahead. Only along consecutive frames of one clip under one
+    /// anchor, and at most this many frames net between a start or seam
+    /// and the next seam; classes without an object keep the clip's clock.
+    /// A dribble whose bounce comes back low and early then meets the
+    /// reference's push when the ball arrives, not at the clip's time
+    /// (docs/training.md, "The bounce, flight by flight"). Not in the
+    /// paper or the reference code.
+    pub ball_clock_frames: usize,
+}
+
+/// How far a ball's bounce is ahead of a reference ball's, s (> 0: the
+/// simulated ball is ahead, the reference should run ahead; < 0: it should
+/// wait). Each ball is `(z, vz)`: height of its centre, m, and vertical
+/// velocity, m/s; `rest`: the centre's height on the floor, m. The phase is
+/// read ballistically: a ball is −vz/g seconds past its apex, (vz +
+/// √(vz² + 2g(z − rest)))/g from the floor ahead and (−vz + √(…))/g past
+/// the floor behind. The lead is the smallest in size of: the gap between
+/// the two apex times; the simulated ball's time past the floor plus the
+/// reference's to it (the simulated ball has bounced, the reference's not
+/// yet); minus the converse. Between bounces a dribbled ball's vertical
+/// velocity only falls, so the apex gap orders the phase whatever the
+/// heights: a ball that comes back lower than the clip's meets the clip's
+/// apex at its own; the two terms across the floor let the reference pass
+/// a bounce its ball has not reached (a hand push only speeds the fall,
+/// and the lead stays an estimate there).
+pub fn ball_phase_lead(sim: (f32, f32), reference: (f32, f32), rest: f32) -> f64 {
+    let g = GRAVITY;
+    let root = |(z, v): (f32, f32)| {
+        let (z, v) = (z as f64, v as f64);
+        (v * v + 2.0 * g * (z - rest as f64).max(0.0)).sqrt()
+    };
+    let to_floor = |b: (f32, f32)| (b.1 as f64 + root(b)) / g;
+    let from_floor = |b: (f32, f32)| (-(b.1 as f64) + root(b)) / g;
+    let apex = (reference.1 as f64 - sim.1 as f64) / g;
+    let bounced = from_floor(sim) + to_floor(reference);
+    let waiting = -(to_floor(sim) + from_floor(reference));
+    [apex, bounced, waiting]
+        .into_iter()
+        .fold(f64::INFINITY, |a, b| if b.abs() < a.abs() { b } else { a })
+}
+
+/// Object 0's height, m, and vertical velocity, m/s, in frame `f` of a
+/// clip (`frames`, at `fps` Hz), as [`ball_phase_lead`] reads a reference
+/// ball. The stored velocity is a backward difference, so on the first
+/// frame after a bounce it spans the floor contact and reads far too slow
+/// (DF `run`: +2.3 m/s between −5.8 and +4.5), which would make the
+/// reference's ball look near its apex; there, when the next frame
+/// exists, that frame's velocity plus g/fps (one frame of free flight
+/// back) is used instead.
+pub fn reference_ball(frames: &crate::motion::ClipFrames, f: usize, fps: f32) -> (f32, f32) {
+    let o = 3 * frames.n_objects;
+    let vz = |f: usize| frames.obj_linvel[o * f + 2];
+    let z = frames.obj_pos[o * f + 2];
+    let bounced = f >= 1 && vz(f) > 0.0 && vz(f - 1) < 0.0;
+    if bounced && f + 1 < frames.frames && frames.valid[f + 1] {
+        (z, vz(f + 1) + (GRAVITY / fps as f64) as f32)
+    } else {
+        (z, vz(f))
+    }
 }
 
 /// Natural frequency of the object assist's spring, Hz: at strength 1 the
@@ -280,6 +346,7 @@ impl EnvConfig {
             object_assist: 0.0,
             object_assist_band: 0.0,
             seam_match: SeamMatch::Reference,
+            ball_clock_frames: 0,
         }
     }
 }
@@ -572,6 +639,13 @@ struct Episode {
     pending_from: Option<std::sync::Arc<State>>,
     /// Policy step of the last seam (`None` before the first).
     seam_t: Option<usize>,
+    /// Index of the current step in [`Episode::step_at`]'s list: `t`, or
+    /// apart from it when the reference's clock follows the ball
+    /// ([`EnvConfig::ball_clock_frames`]).
+    at: usize,
+    /// Frames the reference has run ahead (> 0) or waited (< 0) since the
+    /// start or the last seam.
+    drift: i64,
     class: u32,
     /// Training-reward weights of this episode (object terms off for classes 0/10).
     weights: Weights,
@@ -999,6 +1073,8 @@ impl Ctx<'_> {
             pending: None,
             pending_from: None,
             seam_t: None,
+            at: 0,
+            drift: 0,
             class,
             weights,
             sm_weights,
@@ -1056,7 +1132,7 @@ impl Ctx<'_> {
         }
         let assisted = assist > 0.0 && w.n_objects() > 0 && !no_object_class(ep.class);
         let pulled = assisted
-            .then(|| self.reference(ep, ep.t + 1))
+            .then(|| self.reference(ep, ep.at + 1))
             .flatten()
             .filter(|r| r.obj_pos.len() >= 3)
             .is_some_and(|r| {
@@ -1075,8 +1151,10 @@ impl Ctx<'_> {
         }
         let s = w.get_state();
         ep.t += 1;
-        let tracked = ep.step_at(ep.t).filter(|(st, _)| !st.masked);
-        let reference = self.reference(ep, ep.t);
+        ep.at += 1;
+        self.follow_ball(ep, &s);
+        let tracked = ep.step_at(ep.at).filter(|(st, _)| !st.masked);
+        let reference = self.reference(ep, ep.at);
         let opts = &self.cfg.reward;
         let (reward, sm, sm_terms) = match &reference {
             Some(r) => {
@@ -1126,7 +1204,15 @@ impl Ctx<'_> {
             self.extend(ep, &s);
         }
         self.update_next(ep);
-        let timeout = ep.t >= self.cfg.fixed_length.unwrap_or(ep.policy_steps());
+        // (a reference that waited for its ball leaves steps over when the
+        // episode reaches its length)
+        let timeout = match self.cfg.fixed_length {
+            Some(n) => ep.t >= n,
+            None => {
+                let longest = ep.traj.policy_steps().max(self.cfg.continue_steps);
+                ep.at >= ep.policy_steps() || ep.t >= longest
+            }
+        };
         write_observation(w, &s, Some(&contacts), self.sk, ep.class, out);
         self.write_reference_block(&s, ep, out);
         let probe = self.probe(&s);
@@ -1153,7 +1239,7 @@ impl Ctx<'_> {
     }
 
     /// With residual actions or the reference observation: take the
-    /// reference frame of step `ep.t + 1` when that step has an unmasked
+    /// reference frame of step `ep.at + 1` when that step has an unmasked
     /// one (else keep the last): its joint rotations as `ep.ff` (local,
     /// so a continued frame's anchor does not change them), the anchored
     /// state as `ep.next_ref`.
@@ -1162,12 +1248,12 @@ impl Ctx<'_> {
         if !(res || obs) {
             return;
         }
-        if let Some(r) = self.reference(ep, ep.t + 1) {
+        if let Some(r) = self.reference(ep, ep.at + 1) {
             if res {
                 let lead = self.cfg.feed_forward_lead;
                 // a lead only along one clip: never across a seam's jump
                 let along = |t: usize| ep.step_at(t).map(|(st, a)| (st.ref_clip, st.ref_frame, a));
-                let consecutive = match (along(ep.t), along(ep.t + 1)) {
+                let consecutive = match (along(ep.at), along(ep.at + 1)) {
                     (Some((c0, Some(f0), a0)), Some((c1, Some(f1), a1))) => {
                         c0 == c1 && f1 == f0 + 1 && a0 == a1
                     }
@@ -1175,7 +1261,7 @@ impl Ctx<'_> {
                 };
                 // the current frame is looked up only when a lead uses it
                 let now = (lead != 0.0 && consecutive)
-                    .then(|| self.reference(ep, ep.t))
+                    .then(|| self.reference(ep, ep.at))
                     .flatten();
                 let e = match now {
                     Some(now) => lead_target(&now.joint_rot, &r.joint_rot, lead),
@@ -1243,6 +1329,48 @@ impl Ctx<'_> {
         tracking_lost(s, reference, self.sk, key, obj, obj_err)
     }
 
+    /// With [`EnvConfig::ball_clock_frames`]: after a step that moved
+    /// `ep.at` to the next entry, move it back one (the reference waits) or
+    /// on one (it runs ahead) by the simulated ball's phase lead over that
+    /// frame's ([`ball_phase_lead`] of [`reference_ball`], the raw clip
+    /// frame: the anchor and a seam's blend change neither height nor
+    /// vertical velocity).
+    fn follow_ball(&self, ep: &mut Episode, s: &State) {
+        let most = self.cfg.ball_clock_frames as i64;
+        if most == 0 || no_object_class(ep.class) || s.obj_pos.len() < 3 {
+            return;
+        }
+        let frame = |i: usize| {
+            let (st, a) = ep.step_at(i).filter(|(st, _)| !st.masked)?;
+            Some((st.ref_clip?, st.ref_frame?, a))
+        };
+        let Some((c, f, a)) = frame(ep.at) else {
+            return;
+        };
+        // entry `i` holds frame f + df of the same clip under the same anchor
+        let along = |i: usize, df: i64| {
+            frame(i).is_some_and(|(c2, f2, a2)| c2 == c && a2 == a && f2 as i64 == f as i64 + df)
+        };
+        let fps = self.lib.clips[c as usize].fps;
+        let lead = ball_phase_lead(
+            (s.obj_pos[2], s.obj_linvel[2]),
+            reference_ball(&self.lib.frames[c as usize], f as usize, fps),
+            self.objects
+                .first()
+                .map_or(0.0, |o| -o.shape.compute_local_aabb().mins.z),
+        );
+        let half_frame = 0.5 / fps as f64;
+        let step = if lead > half_frame && ep.drift < most && along(ep.at + 1, 1) {
+            1
+        } else if lead < -half_frame && ep.drift > -most && ep.at >= 1 && along(ep.at - 1, -1) {
+            -1
+        } else {
+            0
+        };
+        ep.at = (ep.at as i64 + step) as usize;
+        ep.drift += step;
+    }
+
     /// Continue `ep`'s reference past its clip's end (see
     /// [`crate::augment::seam`]) when the step just taken was its last and
     /// the episode may run longer. N = Eq. 20 (β), at least
@@ -1253,7 +1381,7 @@ impl Ctx<'_> {
     /// N masked states, ŝ_j, ŝ_{j+1}, ...).
     fn extend(&self, ep: &mut Episode, s: &State) {
         let total = self.cfg.continue_steps;
-        if total == 0 || ep.t < ep.policy_steps() || ep.t >= total {
+        if total == 0 || ep.at < ep.policy_steps() || ep.t >= total {
             return;
         }
         if let Some(seam) = ep.pending.take() {
@@ -1261,7 +1389,7 @@ impl Ctx<'_> {
             self.follow_seam(ep, s, seam, seam.to_frame as usize, from);
             return;
         }
-        let Some((last, _)) = ep.step_at(ep.t) else {
+        let Some((last, _)) = ep.step_at(ep.at) else {
             return;
         };
         let Some(clip) = last.ref_clip else { return };
@@ -1286,7 +1414,7 @@ impl Ctx<'_> {
         let n = n.max(self.cfg.seam_masked_min) as usize;
         // the frame the old clip ends on, for a blend after the seam
         let from = (self.cfg.seam_blend_steps > 0)
-            .then(|| self.reference(ep, ep.t))
+            .then(|| self.reference(ep, ep.at))
             .flatten()
             .map(std::sync::Arc::new);
         if n == 0 {
@@ -1341,6 +1469,7 @@ impl Ctx<'_> {
             )
         });
         ep.seam_t = Some(ep.t);
+        ep.drift = 0;
         let start = ep.cont.len();
         ep.cont.extend(steps);
         ep.blend.resize(ep.cont.len(), None);
@@ -1697,7 +1826,7 @@ impl<'a> HumanoidEnv<'a> {
     /// when masked or right after a reset, before the first step).
     pub fn reference_of(&self, e: usize) -> Option<State> {
         let ep = self.eps.get(e)?;
-        (ep.t > 0).then(|| self.ctx.reference(ep, ep.t)).flatten()
+        (ep.t > 0).then(|| self.ctx.reference(ep, ep.at)).flatten()
     }
 
     /// The simulated state of environment `e` now: after its last step
@@ -2142,5 +2271,42 @@ mod tests {
             feed_forward(&[0.0, pi / 2.0, -pi / 4.0, 4.0, -4.0]),
             vec![0.0, 0.5, -0.25, 1.0, -1.0]
         );
+    }
+
+    #[test]
+    fn the_phase_lead_is_the_apex_gap_or_the_gap_across_the_floor() {
+        // balls in free flight from the floor (centre `rest` m up) at
+        // `v0` m/s, `t` s after their bounce: (z, vz)
+        let (g, rest) = (GRAVITY as f32, 0.12f32);
+        let ball = |v0: f32, t: f32| (rest + v0 * t - 0.5 * g * t * t, v0 - g * t);
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-4;
+        // the same bounce: no lead; a lower bounce with the same time to
+        // its apex left: none either, whatever the height gap
+        assert!(close(
+            ball_phase_lead(ball(4.0, 0.2), ball(4.0, 0.2), rest),
+            0.0
+        ));
+        let (low, high) = (ball(3.0, 3.0 / g - 0.1), ball(4.5, 4.5 / g - 0.1));
+        assert!((high.0 - low.0) > 0.3);
+        assert!(close(ball_phase_lead(low, high, rest), 0.0));
+        // 50 ms further along the same flight: 50 ms ahead; the converse
+        assert!(close(
+            ball_phase_lead(ball(4.0, 0.25), ball(4.0, 0.2), rest),
+            0.05
+        ));
+        assert!(close(
+            ball_phase_lead(ball(4.0, 0.2), ball(4.0, 0.25), rest),
+            -0.05
+        ));
+        // the simulated ball 20 ms past its bounce, the reference's 30 ms
+        // before its own (the flight of 0.9 s from its bounce at 4.5 m/s
+        // ends 0.917 s after): 50 ms ahead, not a second behind
+        let flight = 2.0 * 4.5 / g;
+        let falling = ball(4.5, flight - 0.03);
+        let lead = ball_phase_lead(ball(3.5, 0.02), falling, rest);
+        assert!(close(lead, 0.05), "{lead}");
+        // and the converse: the reference's ball has bounced, ours not yet
+        let lead = ball_phase_lead(falling, ball(3.5, 0.02), rest);
+        assert!(close(lead, -0.05), "{lead}");
     }
 }

@@ -268,6 +268,7 @@ pub fn environment<'a>(
         term_grace_steps: cfg.term_grace_steps,
         object_assist_band: cfg.object_assist_band as f32,
         seam_match: cfg.seam_match,
+        ball_clock_frames: cfg.ball_clock_frames,
         nsi_follow: cfg.nsi && !cfg.stf,
         ats: cfg.ats,
         ats_params: s.ats_params,
