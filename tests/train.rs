@@ -546,32 +546,14 @@ fn continue_past_the_clip_end(masked_min: u32) {
         assert!(seam.to_frame as usize + 30 <= end, "{seam:?}");
         assert!(seam.beta > 0.0 && seam.beta <= 1.0);
     }
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     let n = 4;
-    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
-    env.set_recording(true);
-    let zeros = vec![0f32; n * env.act_dim()];
     // per env and step: (reference clip and frame, root xy, anchored reference root xy)
-    type Traced = (Option<(u32, u32)>, [f32; 2], Option<[f32; 2]>);
-    let mut trace: Vec<Vec<Traced>> = vec![Vec::new(); n];
-    let mut ended = vec![false; n];
-    for _ in 0..200 {
-        let r = env.step(&zeros, &mut rng).unwrap();
-        let recs = env.take_recorded();
-        for e in 0..n {
-            if ended[e] {
-                continue;
-            }
-            let rec = recs[e].as_ref().unwrap();
-            let root = env.probes()[e].root;
-            let anchored = env.reference_of(e).map(|x| [x.root_pos[0], x.root_pos[1]]);
-            trace[e].push((rec.reference, [root[0], root[1]], anchored));
-            if r.terminated[e] || r.truncated[e] {
-                assert!(r.truncated[e], "no early termination here");
-                ended[e] = true;
-            }
-        }
-    }
+    let (trace, mut env) = zero_action_trace(&s, &cfg, (5, n, 200), |env, e, rec, r| {
+        assert!(!r.terminated[e], "no early termination here");
+        let root = env.probes()[e].root;
+        let anchored = env.reference_of(e).map(|x| [x.root_pos[0], x.root_pos[1]]);
+        (rec.reference, [root[0], root[1]], anchored)
+    });
     let mut seams_seen = 0;
     for t in &trace {
         assert_eq!(t.len(), 200, "every episode lasts episode_length steps");
@@ -622,6 +604,53 @@ fn continue_past_the_clip_end(masked_min: u32) {
     assert_eq!(st.continuations, n as u64);
 }
 
+/// Per environment, one row per step of its first episode (`row(env, e,
+/// recorded step, step result)` after the step) of `n` environments of
+/// `cfg` over `s` (generator seeded with `seed`) run with zero actions for
+/// `steps` steps, and the environment after them. After an episode's last
+/// step the environment has reset: its state is the next episode's start.
+fn zero_action_trace<'a, T>(
+    s: &'a skillaug::rl::trainer::Setup,
+    cfg: &TrainConfig,
+    (seed, n, steps): (u64, usize, usize),
+    mut row: impl FnMut(
+        &skillaug::rl::humanoid::HumanoidEnv,
+        usize,
+        &skillaug::rl::humanoid::RecordedStep,
+        &skillaug::rl::StepResult,
+    ) -> T,
+) -> (Vec<Vec<T>>, skillaug::rl::humanoid::HumanoidEnv<'a>) {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut env = environment(s, cfg, None, n, &mut rng).unwrap();
+    env.set_recording(true);
+    let zeros = vec![0f32; n * env.act_dim()];
+    let mut trace: Vec<Vec<T>> = (0..n).map(|_| Vec::new()).collect();
+    let mut ended = vec![false; n];
+    for _ in 0..steps {
+        let r = env.step(&zeros, &mut rng).unwrap();
+        let recs = env.take_recorded();
+        for e in 0..n {
+            if ended[e] {
+                continue;
+            }
+            trace[e].push(row(&env, e, recs[e].as_ref().unwrap(), &r));
+            ended[e] = r.terminated[e] || r.truncated[e];
+        }
+    }
+    (trace, env)
+}
+
+/// [`zero_action_trace`]'s rows of the reference (clip, frame) each step
+/// was scored against and the state after it.
+fn reference_and_state(
+    env: &skillaug::rl::humanoid::HumanoidEnv,
+    e: usize,
+    rec: &skillaug::rl::humanoid::RecordedStep,
+    _: &skillaug::rl::StepResult,
+) -> (Option<(u32, u32)>, skillaug::motion::State) {
+    (rec.reference, env.state_of(e).unwrap())
+}
+
 #[test]
 fn seams_matched_to_the_simulation_continue_at_the_frame_nearest_the_character_and_ball() {
     // 200-step DF episodes with zero actions and `seam_match =
@@ -652,26 +681,8 @@ fn seams_matched_to_the_simulation_continue_at_the_frame_nearest_the_character_a
         assert_eq!((near.to_clip as usize, near.to_frame), (c, 20));
         assert!((near.beta - 1.0).abs() < 1e-9, "{near:?}");
     }
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     let n = 4;
-    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
-    env.set_recording(true);
-    let zeros = vec![0f32; n * env.act_dim()];
-    // per env and step: the reference (clip, frame) and the state after it
-    let mut trace: Vec<Vec<_>> = vec![Vec::new(); n];
-    let mut ended = vec![false; n];
-    for _ in 0..200 {
-        let r = env.step(&zeros, &mut rng).unwrap();
-        let recs = env.take_recorded();
-        for e in 0..n {
-            if ended[e] {
-                continue;
-            }
-            let rec = recs[e].as_ref().unwrap();
-            trace[e].push((rec.reference, env.state_of(e).unwrap()));
-            ended[e] = r.terminated[e] || r.truncated[e];
-        }
-    }
+    let (trace, _) = zero_action_trace(&s, &cfg, (5, n, 200), reference_and_state);
     let (mut seams_seen, mut off_own_seam, mut unlinked) = (0, 0, 0);
     for t in &trace {
         assert_eq!(t.len(), 200, "every episode lasts episode_length steps");
@@ -753,25 +764,7 @@ fn a_reference_whose_clock_follows_the_ball_waits_or_runs_ahead_by_the_bounce_ph
         &["train.ball_clock_frames=20000"],
         "train.ball_clock_frames",
     );
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
-    let n = 4;
-    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
-    env.set_recording(true);
-    let zeros = vec![0f32; n * env.act_dim()];
-    let mut trace: Vec<Vec<_>> = vec![Vec::new(); n];
-    let mut ended = vec![false; n];
-    for _ in 0..200 {
-        let r = env.step(&zeros, &mut rng).unwrap();
-        let recs = env.take_recorded();
-        for e in 0..n {
-            if ended[e] {
-                continue;
-            }
-            let rec = recs[e].as_ref().unwrap();
-            trace[e].push((rec.reference, env.state_of(e).unwrap()));
-            ended[e] = r.terminated[e] || r.truncated[e];
-        }
-    }
+    let (trace, _) = zero_action_trace(&s, &cfg, (9, 4, 200), reference_and_state);
     let rest = skillaug::sim::objects::BALL_RADIUS;
     let (mut waits, mut skips, mut at_bound, mut exact) = (0, 0, 0, 0);
     for t in &trace {
