@@ -746,8 +746,9 @@ fn a_reference_whose_clock_follows_the_ball_waits_or_runs_ahead_by_the_bounce_ph
     // before it or the one after it, as the simulated ball's phase lead
     // over the next frame's ball says (recomputed here from the state
     // after the step and the clip's frame), never more than 6 frames net
-    // between seams; the ball the character drops runs out of phase, so
-    // the reference both waits and runs ahead
+    // between seams, while its root travels one clip frame a step; the
+    // ball the character drops runs out of phase, so the reference both
+    // waits and runs ahead
     use skillaug::rl::humanoid::{ball_phase_lead, reference_ball};
     let most = 6i64;
     let cfg = TrainConfig {
@@ -764,7 +765,11 @@ fn a_reference_whose_clock_follows_the_ball_waits_or_runs_ahead_by_the_bounce_ph
         &["train.ball_clock_frames=20000"],
         "train.ball_clock_frames",
     );
-    let (trace, _) = zero_action_trace(&s, &cfg, (9, 4, 200), reference_and_state);
+    // per step: reference (clip, frame), state after it, anchored reference root xy
+    let (trace, _) = zero_action_trace(&s, &cfg, (9, 4, 200), |env, e, rec, _| {
+        let anchored = env.reference_of(e).map(|x| [x.root_pos[0], x.root_pos[1]]);
+        (rec.reference, env.state_of(e).unwrap(), anchored)
+    });
     let rest = skillaug::sim::objects::BALL_RADIUS;
     let (mut waits, mut skips, mut at_bound, mut exact) = (0, 0, 0, 0);
     for t in &trace {
@@ -775,7 +780,9 @@ fn a_reference_whose_clock_follows_the_ball_waits_or_runs_ahead_by_the_bounce_ph
         let mut prev: Option<(u32, u32)> = None;
         // (after the last step the environment has reset: its state is
         // the next episode's start)
-        for (k, (reference, st)) in t.iter().enumerate().take(t.len() - 1) {
+        let mut prev_root: Option<[f32; 2]> = None;
+        for (k, (reference, st, root)) in t.iter().enumerate().take(t.len() - 1) {
+            let last_root = std::mem::replace(&mut prev_root, *root);
             let Some((c1, f1)) = *reference else {
                 prev = None;
                 continue;
@@ -797,6 +804,17 @@ fn a_reference_whose_clock_follows_the_ball_waits_or_runs_ahead_by_the_bounce_ph
             }
             let frames = &s.lib.frames[c1 as usize];
             let next = (f0 + 1) as usize;
+            // the root travels by the clip's clock: one frame's travel a
+            // step, whether the frames waited or ran ahead
+            let (r0, r1) = (last_root.unwrap(), root.unwrap());
+            let moved = ((r1[0] - r0[0]).powi(2) + (r1[1] - r0[1]).powi(2)).sqrt();
+            let clip = |f: usize| [frames.root_pos[3 * f], frames.root_pos[3 * f + 1]];
+            let (p0, p1) = (clip(f0 as usize), clip(next));
+            let travel = ((p1[0] - p0[0]).powi(2) + (p1[1] - p0[1]).powi(2)).sqrt();
+            assert!(
+                (moved - travel).abs() < 1e-3,
+                "step {k}: {moved} m against {travel} m"
+            );
             let fps = s.lib.clips[c1 as usize].fps;
             let ball = reference_ball(frames, next, fps);
             let lead = ball_phase_lead((st.obj_pos[2], st.obj_linvel[2]), ball, rest);

@@ -249,6 +249,9 @@ pub struct EnvConfig {
     /// frame ahead. Only along consecutive frames of one clip under one
     /// anchor, and at most this many frames net between a start or seam
     /// and the next seam; classes without an object keep the clip's clock.
+    /// The reference's root still travels by the clip's clock: a wait or a
+    /// run ahead moves the whole reference horizontally by the root's
+    /// travel over the frame waited or skipped.
     /// A dribble whose bounce comes back low and early then meets the
     /// reference's push when the ball arrives, not at the clip's time
     /// (docs/training.md, "The bounce, flight by flight"). Not in the
@@ -646,6 +649,12 @@ struct Episode {
     /// Frames the reference has run ahead (> 0) or waited (< 0) since the
     /// start or the last seam.
     drift: i64,
+    /// Horizontal move, m, added to the reference so that its root travels
+    /// by the clip's clock while its frames follow the ball's: each wait
+    /// adds the root's travel over the frame it waited, each run ahead
+    /// takes away the frame it skipped. A seam's anchor is set less it, so
+    /// the seam frame still lands on the character.
+    shift: [f64; 2],
     class: u32,
     /// Training-reward weights of this episode (object terms off for classes 0/10).
     weights: Weights,
@@ -1075,6 +1084,7 @@ impl Ctx<'_> {
             seam_t: None,
             at: 0,
             drift: 0,
+            shift: [0.0; 2],
             class,
             weights,
             sm_weights,
@@ -1294,8 +1304,9 @@ impl Ctx<'_> {
         }
     }
 
-    /// The reference state of `ep`'s step `t` (anchored when continued);
-    /// `None` for a masked step.
+    /// The reference state of `ep`'s step `t` (anchored when continued,
+    /// moved by the ball clock's shift, [`Episode::shift`]); `None` for a
+    /// masked step.
     fn reference(&self, ep: &Episode, t: usize) -> Option<State> {
         let (st, anchor) = ep.step_at(t).filter(|(st, _)| !st.masked)?;
         let r = self
@@ -1306,9 +1317,14 @@ impl Ctx<'_> {
             None => r,
         };
         let own = ep.traj.steps.len();
-        Some(match t.checked_sub(own).and_then(|i| ep.blend.get(i)) {
+        let r = match t.checked_sub(own).and_then(|i| ep.blend.get(i)) {
             Some(Some((from, w))) => crate::augment::seam::blend(from, &r, *w),
             _ => r,
+        };
+        Some(if ep.shift == [0.0; 2] {
+            r
+        } else {
+            reward::apply_alignment(&r, 0.0, [0.0; 2], ep.shift)
         })
     }
 
@@ -1367,8 +1383,19 @@ impl Ctx<'_> {
         } else {
             0
         };
-        ep.at = (ep.at as i64 + step) as usize;
-        ep.drift += step;
+        if step != 0 {
+            let to = (ep.at as i64 + step) as usize;
+            let root = |i: usize| {
+                self.reference(ep, i)
+                    .map(|r| [r.root_pos[0], r.root_pos[1]])
+            };
+            if let (Some(a), Some(b)) = (root(ep.at), root(to)) {
+                ep.shift[0] += (a[0] - b[0]) as f64;
+                ep.shift[1] += (a[1] - b[1]) as f64;
+            }
+            ep.at = to;
+            ep.drift += step;
+        }
     }
 
     /// Continue `ep`'s reference past its clip's end (see
@@ -1453,7 +1480,11 @@ impl Ctx<'_> {
         let anchor = Anchor {
             yaw,
             pivot: [target.root_pos[0] as f64, target.root_pos[1] as f64],
-            to: [s.root_pos[0] as f64, s.root_pos[1] as f64],
+            // (less the ball clock's shift, which goes on applying)
+            to: [
+                s.root_pos[0] as f64 - ep.shift[0],
+                s.root_pos[1] as f64 - ep.shift[1],
+            ],
         };
         let room = self.cfg.continue_steps - ep.t;
         let cf = &self.lib.frames[c2];
