@@ -254,8 +254,8 @@ pub struct EnvConfig {
     /// travel over the frame waited or skipped.
     /// A dribble whose bounce comes back low and early then meets the
     /// reference's push when the ball arrives, not at the clip's time
-    /// (docs/training.md, "The bounce, flight by flight"). Not in the
-    /// paper or the reference code.
+    /// (docs/training.md, "A reference whose clock follows the ball").
+    /// Not in the paper or the reference code.
     pub ball_clock_frames: usize,
 }
 
