@@ -130,6 +130,10 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.pd_stiffness_scale=2",
             "--set",
             "train.ball_clock_frames=8",
+            "--set",
+            "train.sim_start_prob=0.5",
+            "--set",
+            "train.sim_start_after=5",
         ],
     );
 }
@@ -238,9 +242,18 @@ fn killed_and_resumed_matches_uninterrupted(he: bool, more: &[&str]) {
         let v: Vec<f64> = v.into_iter().filter(|x| !x.is_nan()).collect();
         v.iter().sum::<f64>() / v.len() as f64
     };
-    assert!(mean(get("stg_start_frac")) > 0.1);
-    assert!(mean(get("noised_start_frac")) > 0.1);
-    assert!(mean(get("mean_n_masked")) > 0.0);
+    if more.contains(&"train.sim_start_prob=0.5") {
+        // the pool takes most starts here (the 4 environments' episodes
+        // end together at steps 200 and 400, when it holds tens of
+        // states), leaving the sampler one: the run without `more` checks
+        // the sampler's starts
+        let f = get("sim_start_frac");
+        assert!(f.iter().any(|x| *x > 0.5), "no start from the pool: {f:?}");
+    } else {
+        assert!(mean(get("stg_start_frac")) > 0.1);
+        assert!(mean(get("noised_start_frac")) > 0.1);
+        assert!(mean(get("mean_n_masked")) > 0.0);
+    }
     if more.contains(&"train.episode_length=200") {
         // references were continued, the rate adapted, the critic warmed up
         assert!(
@@ -855,6 +868,134 @@ fn a_reference_whose_clock_follows_the_ball_waits_or_runs_ahead_by_the_bounce_ph
         at_bound > 0,
         "the drift bound never held the reference back"
     );
+}
+
+#[test]
+fn states_rollouts_reach_start_later_episodes_on_the_frames_they_were_scored_against() {
+    // one DF environment, 120-step episodes with zero actions,
+    // `sim_start_prob = 1` and `sim_start_after = 5`: every 10 steps from
+    // step 5 on the state after the step enters the pool, moved so that it
+    // relates to the clip's frame as it related to the (anchored) reference
+    // it was scored against; once the pool holds states every episode
+    // starts from one of them, follows that frame's successors, and updates
+    // no ATS statistic
+    use skillaug::motion::quat::heading;
+    use skillaug::motion::State;
+    use skillaug::rl::humanoid::SIM_START_POOL;
+    let cfg = TrainConfig {
+        skills: vec!["run".into()],
+        episode_length: 120,
+        early_termination: false,
+        sim_start_prob: 1.0,
+        sim_start_after: 5,
+        ..TrainConfig::default()
+    };
+    let (_dir, run) = ingested("ballplay");
+    let s = setup_for(&run, &cfg);
+    refused(&run, &["train.sim_start_prob=2"], "train.sim_start_prob");
+    refused(&run, &["train.sim_start_after=0"], "train.sim_start_after");
+    // each point of `of` (`[K*3]`) less the same point of `base`, in the
+    // heading frame of `base`'s root
+    let local = |of: &[f32], st: &State, base: &State| -> Vec<[f64; 3]> {
+        let h = heading(base.root_rot);
+        let (sn, cs) = (-h).sin_cos();
+        of.chunks_exact(3)
+            .zip(match of.len() == st.body_pos.len() {
+                true => base.body_pos.chunks_exact(3),
+                false => base.obj_pos.chunks_exact(3),
+            })
+            .map(|(a, b)| {
+                let d = [0, 1, 2].map(|i| (a[i] - b[i]) as f64);
+                [cs * d[0] - sn * d[1], sn * d[0] + cs * d[1], d[2]]
+            })
+            .collect()
+    };
+    let near = |a: &[[f64; 3]], b: &[[f64; 3]], what: &str| {
+        for (x, y) in a.iter().zip(b) {
+            for i in 0..3 {
+                assert!((x[i] - y[i]).abs() < 1e-3, "{what}: {x:?} against {y:?}");
+            }
+        }
+    };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let mut env = environment(&s, &cfg, None, 1, &mut rng).unwrap();
+    env.set_recording(true);
+    let zeros = vec![0f32; env.act_dim()];
+    let (mut t, mut captured, mut moved, mut starts) = (0usize, 0, 0, 0);
+    let mut ats_records = 0;
+    // the pool state the running episode started from
+    let mut from: Option<(u32, u32)> = None;
+    for _ in 0..480 {
+        let before = env.sim_pool().0.len();
+        let r = env.step(&zeros, &mut rng).unwrap();
+        let rec = env.take_recorded()[0].clone().unwrap();
+        t += 1;
+        if let Some((c, f)) = from.take() {
+            assert_eq!(t, 1);
+            assert_eq!(rec.reference, Some((c, f + 1)), "a start follows its frame");
+        }
+        let pool = env.sim_pool().0;
+        // (480 steps leave fewer states than the pool keeps)
+        assert!(pool.len() < SIM_START_POOL);
+        if pool.len() != before {
+            assert!(t >= 5 && (t - 5) % 10 == 0, "a state entered at step {t}");
+            assert_eq!(
+                pool.len(),
+                before + 1,
+                "one state per step of one environment"
+            );
+            let e = pool.last().unwrap();
+            assert_eq!(rec.reference, Some((e.clip, e.frame)));
+            let (st, reference) = (env.state_of(0).unwrap(), env.reference_of(0).unwrap());
+            let frame = s.lib.state(e.clip as usize, e.frame as usize).unwrap();
+            near(
+                &local(&e.state.body_pos, &e.state, &frame),
+                &local(&st.body_pos, &st, &reference),
+                "bodies",
+            );
+            near(
+                &local(&e.state.obj_pos, &e.state, &frame),
+                &local(&st.obj_pos, &st, &reference),
+                "ball",
+            );
+            let dh = |a: &State, b: &State| {
+                let d = heading(a.root_rot) - heading(b.root_rot);
+                d.sin().atan2(d.cos())
+            };
+            assert!((dh(&e.state, &frame) - dh(&st, &reference)).abs() < 1e-3);
+            // continued references are anchored where the character was
+            let off = (0..2).map(|i| (reference.root_pos[i] - frame.root_pos[i]).abs());
+            moved += off.fold(0f32, f32::max).gt(&0.01) as usize;
+            captured += 1;
+        }
+        if r.truncated[0] || r.terminated[0] {
+            assert_eq!(t, 120, "episodes last episode_length steps");
+            ats_records += env.take_ats_log().len();
+            t = 0;
+            if env.take_stats().sim_starts > 0 {
+                // the new episode starts from a pool state
+                let st = env.state_of(0).unwrap();
+                let e = env
+                    .sim_pool()
+                    .0
+                    .iter()
+                    .find(|e| {
+                        let d = |a: &[f32], b: &[f32]| (0..3).all(|i| (a[i] - b[i]).abs() < 1e-3);
+                        d(&e.state.root_pos, &st.root_pos) && d(&e.state.obj_pos, &st.obj_pos)
+                    })
+                    .expect("the start is a pool state");
+                from = Some((e.clip, e.frame));
+                starts += 1;
+            }
+        }
+    }
+    assert!(captured >= 40, "{captured} states entered the pool");
+    assert!(moved > 0, "no state was captured on a continued reference");
+    assert_eq!(
+        starts, 4,
+        "every episode after the first starts from the pool"
+    );
+    assert_eq!(ats_records, 1, "only the first episode updates ATS");
 }
 
 #[test]

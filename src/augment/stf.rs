@@ -345,6 +345,11 @@ pub struct Trajectory {
     pub n_masked: u32,
     /// Step 0 (the start) and one step per policy step.
     pub steps: Vec<Step>,
+    /// The start is a state a training rollout reached, not a clip frame
+    /// (`train.sim_start_prob`, [`crate::rl::humanoid::SimStart`]): its
+    /// episode updates no ATS statistic. False in every STF sample.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub simulated: bool,
 }
 
 impl Trajectory {
@@ -684,6 +689,7 @@ impl<'a> StfSampler<'a> {
             beta: 0.0,
             n_masked: 0,
             steps: Vec::new(),
+            simulated: false,
         };
         let (beta, j, n) = match connection {
             Some(x) => x,

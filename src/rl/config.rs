@@ -297,6 +297,22 @@ pub struct TrainConfig {
     /// or the reference code. Not written when 0.
     #[serde(skip_serializing_if = "is_zero_usize")]
     pub ball_clock_frames: usize,
+    /// Probability, in [0, 1], that a training episode starts from a state
+    /// a rollout reached (at least `sim_start_after` policy steps into its
+    /// episode, kept in a pool of the last 256) and follows the rest of
+    /// that state's clip ([`crate::rl::humanoid::EnvConfig::sim_start_prob`]);
+    /// 0 = off, every start is the STF sampler's. Evaluation never starts
+    /// there. Not in the paper or the reference code. Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_f64")]
+    pub sim_start_prob: f64,
+    /// Policy steps into an episode before its states may start others
+    /// (with `sim_start_prob`). Not written when 30 (the default).
+    #[serde(skip_serializing_if = "is_default_sim_start_after")]
+    pub sim_start_after: usize,
+}
+
+fn is_default_sim_start_after(x: &usize) -> bool {
+    *x == crate::rl::humanoid::SIM_START_AFTER
 }
 
 fn is_one_f64(x: &f64) -> bool {
@@ -454,6 +470,8 @@ impl Default for TrainConfig {
             seam_match: SeamMatch::Reference,
             pd_stiffness_scale: 1.0,
             ball_clock_frames: 0,
+            sim_start_prob: 0.0,
+            sim_start_after: crate::rl::humanoid::SIM_START_AFTER,
         }
     }
 }
@@ -541,6 +559,8 @@ impl crate::config::Validate for TrainConfig {
             0,
             10_000,
         )?;
+        c.range("sim_start_prob", self.sim_start_prob, 0.0, 1.0)?;
+        c.count("sim_start_after", self.sim_start_after as u64, 1, 100_000)?;
         if self.object_assist > 0.0 && self.object_assist_samples == 0 {
             anyhow::bail!(
                 "{stage}.object_assist = {} needs {stage}.object_assist_samples > 0 (the samples over which it fades)",

@@ -257,6 +257,49 @@ pub struct EnvConfig {
     /// (docs/training.md, "A reference whose clock follows the ball").
     /// Not in the paper or the reference code.
     pub ball_clock_frames: usize,
+    /// Probability that a training episode starts from a state a rollout
+    /// reached ([`SimStart`]) instead of a draw from the STF sampler
+    /// (0 = off: every start is the sampler's). Rollouts leave one such
+    /// state every [`SIM_START_EVERY`] policy steps from step
+    /// `sim_start_after` of their episode on, at steps with an unmasked
+    /// reference frame that a later frame of its clip follows, into a
+    /// pool of the last [`SIM_START_POOL`] (per rank); a start draws one
+    /// of them uniformly and follows the rest of its clip, continued past
+    /// the clip's end as any episode. So PPO sees the later pushes of a
+    /// dribble with the ball as the simulation left it (lower than the
+    /// clip's after every bounce, docs/training.md), not only the clip's
+    /// first push on the clip's ball. Never used in evaluation. Not in the
+    /// paper or the reference code.
+    pub sim_start_prob: f64,
+    /// Policy steps into an episode before its states enter the pool of
+    /// [`EnvConfig::sim_start_prob`] (read only when that is > 0).
+    pub sim_start_after: usize,
+}
+
+/// Policy steps between two states a rollout leaves for the pool of
+/// [`EnvConfig::sim_start_prob`].
+pub const SIM_START_EVERY: usize = 10;
+
+/// States the pool of [`EnvConfig::sim_start_prob`] keeps (per rank; the
+/// oldest is replaced first).
+pub const SIM_START_POOL: usize = 256;
+
+/// Default of [`EnvConfig::sim_start_after`]: 30 policy steps, 1 s at
+/// 30 Hz, after the first push of a dribble clip.
+pub const SIM_START_AFTER: usize = 30;
+
+/// A state a training rollout reached, kept to start later episodes from
+/// ([`EnvConfig::sim_start_prob`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SimStart {
+    /// Clip of the reference frame the state was scored against.
+    pub clip: u32,
+    /// That frame; the episode started here follows `frame + 1` on.
+    pub frame: u32,
+    /// The simulated state, moved rigidly (about the vertical, and
+    /// horizontally) so that the reference frame it was scored against
+    /// lies where the clip has it: its error to `frame` is the one it had.
+    pub state: State,
 }
 
 /// How far a ball's bounce is ahead of a reference ball's, s (> 0: the
@@ -350,6 +393,8 @@ impl EnvConfig {
             object_assist_band: 0.0,
             seam_match: SeamMatch::Reference,
             ball_clock_frames: 0,
+            sim_start_prob: 0.0,
+            sim_start_after: SIM_START_AFTER,
         }
     }
 }
@@ -526,6 +571,14 @@ impl HeRuntime {
     fn encode(&self, window: &[f32], cache: &mut EncoderCache) -> Vec<f32> {
         self.kernel.encode_cached(window, cache).0
     }
+}
+
+/// Turn a 3-vector `v` (`[3]`, its x, y) about the vertical by `yaw`, rad.
+fn turn_vectors(v: &mut [f32], yaw: f64) {
+    let (sn, cs) = yaw.sin_cos();
+    let (x, y) = (v[0] as f64, v[1] as f64);
+    v[0] = (cs * x - sn * y) as f32;
+    v[1] = (sn * x + cs * y) as f32;
 }
 
 /// Turn each object about the vertical through its centre by U[-45°, 45°]
@@ -766,6 +819,8 @@ struct Outcome {
     feature: Vec<f32>,
     probe: Probe,
     record: Option<RecordedStep>,
+    /// A state for the pool of [`EnvConfig::sim_start_prob`].
+    capture: Option<SimStart>,
 }
 
 /// Totals of the steps since the last [`HumanoidEnv::take_stats`].
@@ -800,6 +855,10 @@ pub struct EnvStats {
     pub starts: StartCounts,
     /// Sum of the masked-state counts N of the starts.
     pub n_masked_sum: u64,
+    /// Starts from states rollouts reached ([`EnvConfig::sim_start_prob`];
+    /// not in `starts`).
+    #[serde(default)]
+    pub sim_starts: u64,
 }
 
 impl EnvStats {
@@ -824,6 +883,7 @@ impl EnvStats {
         self.starts.stg += o.starts.stg;
         self.starts.stg_noised += o.starts.stg_noised;
         self.n_masked_sum += o.n_masked_sum;
+        self.sim_starts += o.sim_starts;
     }
 
     /// Mean unmasked training reward per step.
@@ -1210,7 +1270,11 @@ impl Ctx<'_> {
         let lost = (self.cfg.early_termination && ep.t > 1)
             .then(|| self.lost(&s, reference.as_ref(), ep))
             .flatten();
-        if !(fall || collapse || lost.is_some()) {
+        let ended = fall || collapse || lost.is_some();
+        let capture = (self.cfg.sim_start_prob > 0.0 && !ended)
+            .then(|| self.capture(ep, &s))
+            .flatten();
+        if !ended {
             self.extend(ep, &s);
         }
         self.update_next(ep);
@@ -1245,7 +1309,55 @@ impl Ctx<'_> {
             feature,
             probe,
             record,
+            capture,
         }
+    }
+
+    /// With [`EnvConfig::sim_start_prob`]: `s` as a [`SimStart`] when the
+    /// episode is at least `sim_start_after` steps in, on a multiple of
+    /// [`SIM_START_EVERY`] after that, its step `ep.at` has an unmasked
+    /// reference frame (not blended after a seam) that a later valid frame
+    /// of its clip follows. The state is moved by the inverse of the
+    /// ball clock's shift and of the step's anchor, so that it relates to
+    /// the clip's frame as it related to the reference it was scored
+    /// against.
+    fn capture(&self, ep: &Episode, s: &State) -> Option<SimStart> {
+        let after = self.cfg.sim_start_after;
+        if ep.t < after || !(ep.t - after).is_multiple_of(SIM_START_EVERY) {
+            return None;
+        }
+        let (st, anchor) = ep.step_at(ep.at).filter(|(st, _)| !st.masked)?;
+        let own = ep.traj.steps.len();
+        if ep.at >= own && matches!(ep.blend.get(ep.at - own), Some(Some(_))) {
+            return None;
+        }
+        let (clip, frame) = (st.ref_clip?, st.ref_frame?);
+        let last = self.lib.frames.get(clip as usize)?.last_valid()?;
+        if frame as usize + 1 > last {
+            return None;
+        }
+        // reference = shift + anchor(frame): undo the shift, then the anchor
+        let mut state = if ep.shift == [0.0; 2] {
+            s.clone()
+        } else {
+            reward::apply_alignment(s, 0.0, [0.0; 2], [-ep.shift[0], -ep.shift[1]])
+        };
+        if let Some(m) = anchor {
+            state = reward::apply_alignment(&state, -m.yaw, m.to, m.pivot);
+            if matches!(
+                self.sim.angvel_frame,
+                crate::motion::clip::AngvelFrame::World
+            ) {
+                // `apply_alignment` keeps body-frame angular velocities;
+                // world-frame ones turn with the state
+                turn_vectors(&mut state.root_angvel, -m.yaw);
+                state
+                    .obj_angvel
+                    .chunks_exact_mut(3)
+                    .for_each(|v| turn_vectors(v, -m.yaw));
+            }
+        }
+        Some(SimStart { clip, frame, state })
     }
 
     /// With residual actions or the reference observation: take the
@@ -1556,6 +1668,11 @@ pub struct HumanoidEnv<'a> {
     sm: Vec<Option<f64>>,
     record: bool,
     records: Vec<Option<RecordedStep>>,
+    /// States rollouts reached, to start episodes from
+    /// ([`EnvConfig::sim_start_prob`]); at most [`SIM_START_POOL`].
+    sim_pool: Vec<SimStart>,
+    /// Where the next state goes once the pool is full (the oldest).
+    sim_next: usize,
 }
 
 /// Everything [`HumanoidEnv::new`] needs.
@@ -1650,6 +1767,8 @@ impl<'a> HumanoidEnv<'a> {
             sm: Vec::new(),
             record: false,
             records: Vec::new(),
+            sim_pool: Vec::new(),
+            sim_next: 0,
         };
         env.refresh_ats();
         let mut draws = Vec::with_capacity(n);
@@ -1762,6 +1881,7 @@ impl<'a> HumanoidEnv<'a> {
                                 ref_frame: None,
                             }]
                         },
+                        simulated: false,
                     };
                     starts.push((traj, target.clone()));
                 }
@@ -1890,6 +2010,14 @@ impl<'a> HumanoidEnv<'a> {
 
     /// Draw a start trajectory and its ATS key.
     fn draw(&mut self, rng: &mut ChaCha8Rng) -> Result<(Trajectory, (usize, usize))> {
+        if self.ctx.cfg.sim_start_prob > 0.0 {
+            use rand::Rng;
+            let u: f64 = rng.random();
+            if u < self.ctx.cfg.sim_start_prob && !self.sim_pool.is_empty() {
+                let i = rng.random_range(0..self.sim_pool.len());
+                return Ok(self.sim_start(i));
+            }
+        }
         let mut t = self
             .sampler
             .sample(&self.ats_weights, &self.stf, rng)
@@ -1914,6 +2042,64 @@ impl<'a> HumanoidEnv<'a> {
         self.stats.starts.add(t.start_kind, t.noised);
         self.stats.n_masked_sum += t.n_masked as u64;
         Ok((t, key))
+    }
+
+    /// The trajectory that starts from pool state `i` and follows the rest
+    /// of its clip, and its ATS key (which its episode does not update).
+    fn sim_start(&mut self, i: usize) -> (Trajectory, (usize, usize)) {
+        let SimStart { clip, frame, state } = self.sim_pool[i].clone();
+        let c = &self.ctx.lib.clips[clip as usize];
+        let steps = self
+            .sampler
+            .follow(clip as usize, frame as usize + 1, self.stf.horizon);
+        let t = Trajectory {
+            target_skill: c.skill.clone(),
+            condition: self.ctx.cfg.condition.unwrap_or(c.class as u32),
+            start: state,
+            start_kind: StartKind::Rsi,
+            noised: false,
+            fallback: false,
+            centroid: (clip, frame),
+            connect: (clip, frame),
+            beta: 1.0,
+            n_masked: 0,
+            steps,
+            simulated: true,
+        };
+        self.stats.sim_starts += 1;
+        (t, (clip as usize, frame as usize))
+    }
+
+    /// The pool of [`EnvConfig::sim_start_prob`] and the slot its next
+    /// state replaces once full, for a checkpoint.
+    pub fn sim_pool(&self) -> (&[SimStart], usize) {
+        (&self.sim_pool, self.sim_next)
+    }
+
+    /// Restore the pool of a checkpoint ([`HumanoidEnv::sim_pool`]).
+    ///
+    /// # Errors
+    /// More than [`SIM_START_POOL`] states, a slot outside the pool, or a
+    /// state whose clip or frame this library does not have.
+    pub fn set_sim_pool(&mut self, pool: Vec<SimStart>, next: usize) -> Result<()> {
+        ensure!(
+            pool.len() <= SIM_START_POOL && (next < SIM_START_POOL || pool.is_empty()),
+            "checkpoint with {} simulated starts (at most {SIM_START_POOL}) and next slot {next}",
+            pool.len()
+        );
+        for p in &pool {
+            let frames = self.ctx.lib.frames.get(p.clip as usize).map(|f| f.frames);
+            ensure!(
+                frames.is_some_and(|n| (p.frame as usize) + 1 < n),
+                "checkpoint simulated start at clip {} frame {}: not a frame of this library \
+                 with one after it",
+                p.clip,
+                p.frame
+            );
+        }
+        self.sim_pool = pool;
+        self.sim_next = next;
+        Ok(())
     }
 
     /// Start every draw in a fresh world, in parallel.
@@ -2137,6 +2323,17 @@ impl VecEnv for HumanoidEnv<'_> {
         if self.record {
             self.records = outs.iter_mut().map(|o| o.record.take()).collect();
         }
+        // in environment order, so the pool does not depend on the threads
+        for o in &mut outs {
+            if let Some(c) = o.capture.take() {
+                if self.sim_pool.len() < SIM_START_POOL {
+                    self.sim_pool.push(c);
+                } else {
+                    self.sim_pool[self.sim_next] = c;
+                    self.sim_next = (self.sim_next + 1) % SIM_START_POOL;
+                }
+            }
+        }
         let mut res = StepResult {
             rewards,
             terminated: vec![false; n],
@@ -2160,7 +2357,7 @@ impl VecEnv for HumanoidEnv<'_> {
                 self.stats.lost += lost.is_some() as u64;
                 self.stats.lost_object += (lost == Some(Lost::Object)) as u64;
                 self.stats.continuations += (!ep.cont.is_empty()) as u64;
-                if ep.n > 0 {
+                if ep.n > 0 && !ep.traj.simulated {
                     let (c, f) = ep.ats_key;
                     let r = ep.sum / ep.n as f64;
                     self.ats.record(c, f, r, self.ctx.cfg.ats_update);

@@ -18,7 +18,7 @@
 use super::comm::{fingerprint, Comm};
 use super::config::{PolicyMeta, TrainConfig, WarmStartPush};
 use super::humanoid::{
-    EnvConfig, EnvParts, EnvStats, EpisodeRecord, HeRuntime, HumanoidEnv, JointSet,
+    EnvConfig, EnvParts, EnvStats, EpisodeRecord, HeRuntime, HumanoidEnv, JointSet, SimStart,
 };
 use super::{collect, Agent, EpisodeTracker, StepResult, VecEnv};
 use crate::augment::ats::{Ats, AtsParams};
@@ -269,6 +269,8 @@ pub fn environment<'a>(
         object_assist_band: cfg.object_assist_band as f32,
         seam_match: cfg.seam_match,
         ball_clock_frames: cfg.ball_clock_frames,
+        sim_start_prob: cfg.sim_start_prob,
+        sim_start_after: cfg.sim_start_after,
         nsi_follow: cfg.nsi && !cfg.stf,
         ats: cfg.ats,
         ats_params: s.ats_params,
@@ -479,6 +481,17 @@ struct RankState {
     /// `train.overlap_rollout` (its buffer goes to `pending.bin`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pending: Option<PendingMeta>,
+    /// The states episodes may start from with `train.sim_start_prob`
+    /// ([`HumanoidEnv::sim_pool`]; absent when empty).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    sim_pool: Vec<SimStart>,
+    /// The pool slot the next state replaces once it is full.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    sim_next: usize,
+}
+
+fn is_zero(x: &usize) -> bool {
+    *x == 0
 }
 
 /// A ChaCha8 generator's position.
@@ -1012,6 +1025,8 @@ impl<'a> Trainer<'a> {
         let mut throwaway = ChaCha8Rng::seed_from_u64(seed);
         let mut env = environment(s, cfg, he, n, &mut throwaway)?;
         env.restore(recs)?;
+        env.set_sim_pool(part.sim_pool.clone(), part.sim_next)
+            .with_context(|| format!("--resume: {}", out.display()))?;
         let mut ats = env.ats().clone();
         for (c, f, m, v) in &st.ats {
             ats.restore_stat(*c, *f, *m, *v);
@@ -1379,6 +1394,11 @@ impl<'a> Trainer<'a> {
                 mean_sm_contact: st.mean_sm_factor(3),
                 lost_rate: st.lost_rate(),
                 lost_object_rate: st.lost_object_rate(),
+                sim_start_frac: if st.start_count() + st.sim_starts > 0 {
+                    st.sim_starts as f64 / (st.start_count() + st.sim_starts) as f64
+                } else {
+                    f64::NAN
+                },
                 continued_frac: if st.episodes > 0 {
                     st.continuations as f64 / st.episodes as f64
                 } else {
@@ -1503,6 +1523,8 @@ impl<'a> Trainer<'a> {
                 sim_s: c.sim_s,
                 collect_s: c.collect_s,
             }),
+            sim_pool: self.env.sim_pool().0.to_vec(),
+            sim_next: self.env.sim_pool().1,
         };
         let mine = actions_bytes(&recs);
         let pending = match &self.pending {

@@ -70,6 +70,7 @@ metrics! {
     mean_sm_contact: "mean SM contact-graph factor r_cg per unmasked step",
     lost_rate: "fraction of the finished episodes ended by a tracking failure (key points or ball too far)",
     lost_object_rate: "fraction of the finished episodes ended because the ball left the character while the reference kept it",
+    sim_start_frac: "fraction of the iteration's starts from states rollouts reached (train.sim_start_prob; NaN without starts)",
     continued_frac: "fraction of the finished episodes whose reference continued past a clip's end (NaN if none finished)",
     samples_per_s: "end-to-end samples per second of the iteration",
     sim_s: "seconds in the environment (physics, observation, reward, resets)",
