@@ -303,17 +303,23 @@ fn a_policy_that_needs_its_reference_gets_it_continued_in_every_trial_cell() {
 }
 
 #[test]
-fn a_policy_trained_with_a_stiffer_drive_is_evaluated_with_it() {
-    // `train.pd_stiffness_scale` travels in policy.meta.json and the
-    // evaluation builds its worlds with it: the same weights, evaluated
-    // once as trained (kp x 4) and once with the setting taken out of the
-    // description (the model's kp), give other trials
-    let (dir, run, pol) = df_policy(&["train.residual_action=true", "train.pd_stiffness_scale=4"]);
+fn a_policy_trained_with_a_stiffer_drive_or_a_lighter_ball_is_evaluated_with_them() {
+    // `train.pd_stiffness_scale` and `train.object_density` travel in
+    // policy.meta.json and the evaluation builds its worlds with them: the
+    // same weights, evaluated once as trained (kp x 4, a 0.6 kg ball) and
+    // once with either setting taken out of the description (the model's
+    // kp, the ball's own 7.24 kg), give other trials
+    let (dir, run, pol) = df_policy(&[
+        "train.residual_action=true",
+        "train.pd_stiffness_scale=4",
+        "train.object_density=83",
+    ]);
     let from = run.to_str().unwrap();
     let meta_path = pol.join("policy.meta.json");
-    let mut meta: serde_json::Value =
+    let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&meta_path).unwrap()).unwrap();
     assert_eq!(meta["train"]["pd_stiffness_scale"], 4.0);
+    assert_eq!(meta["train"]["object_density"], 83.0);
     let sets = [
         "eval.trials=4",
         "eval.envs=4",
@@ -333,14 +339,15 @@ fn a_policy_trained_with_a_stiffer_drive_is_evaluated_with_it() {
     let again = dir.path().join("ev-again");
     eval(from, &pol, &again, &sets);
     assert_eq!(mean_sm(&stiff), mean_sm(&again));
-    meta["train"]
-        .as_object_mut()
-        .unwrap()
-        .remove("pd_stiffness_scale");
-    std::fs::write(&meta_path, serde_json::to_vec(&meta).unwrap()).unwrap();
-    let model = dir.path().join("ev-model");
-    eval(from, &pol, &model, &sets);
-    let (a, b) = (mean_sm(&stiff), mean_sm(&model));
-    eprintln!("mean SM per trial: kp x 4 {a:?}, the model's kp {b:?}");
-    assert_ne!(a, b);
+    // each setting taken out alone changes the trials
+    for key in ["pd_stiffness_scale", "object_density"] {
+        let mut m = meta.clone();
+        m["train"].as_object_mut().unwrap().remove(key);
+        std::fs::write(&meta_path, serde_json::to_vec(&m).unwrap()).unwrap();
+        let other = dir.path().join(format!("ev-no-{key}"));
+        eval(from, &pol, &other, &sets);
+        let (a, b) = (mean_sm(&stiff), mean_sm(&other));
+        eprintln!("mean SM per trial: as trained {a:?}, without {key} {b:?}");
+        assert_ne!(a, b, "{key}");
+    }
 }

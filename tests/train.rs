@@ -134,6 +134,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.sim_start_prob=0.5",
             "--set",
             "train.sim_start_after=5",
+            "--set",
+            "train.object_density=83",
         ],
     );
 }
@@ -1358,6 +1360,40 @@ fn a_stiffer_drive_keeps_an_open_loop_replay_nearer_its_reference() {
         &["train.pd_stiffness_scale=0"],
         "train.pd_stiffness_scale",
     );
+}
+
+#[test]
+fn a_set_object_density_gives_the_training_ball_its_mass() {
+    // `train.object_density` replaces the ball's own 1000 kg/m^3 (7.24 kg
+    // at radius 0.12 m) in the worlds training builds; 83 kg/m^3 is a
+    // basketball's 0.60 kg
+    let (_dir, run) = ingested("ballplay");
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        ..TrainConfig::default()
+    };
+    let mass = |cfg: &TrainConfig| -> f32 {
+        let s = setup_for(&run, cfg);
+        let w = skillaug::sim::World::new(&s.model, &s.objects, &s.sim).unwrap();
+        w.object_mass(0)
+    };
+    let own = mass(&base);
+    let light = mass(&TrainConfig {
+        object_density: Some(83.0),
+        ..base.clone()
+    });
+    let volume = 4.0 / 3.0 * std::f32::consts::PI * 0.12f32.powi(3);
+    assert!((own - 1000.0 * volume).abs() < 0.01, "own ball {own} kg");
+    assert!(
+        (light - 83.0 * volume).abs() < 0.01,
+        "light ball {light} kg"
+    );
+    assert!(
+        (0.567..0.650).contains(&light),
+        "{light} kg is no basketball"
+    );
+    // out of range: refused, naming the key
+    refused(&run, &["train.object_density=0"], "train.object_density");
 }
 
 #[test]

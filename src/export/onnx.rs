@@ -839,6 +839,17 @@ fn metadata(
             ),
         ));
     }
+    if let Some(d) = meta.train.object_density {
+        // the policy was trained on objects of another mass: a consumer
+        // must simulate them with the same density to reproduce it
+        v.push((
+            "object_density",
+            format!(
+                "{d}: trained and evaluated with every object's density set to this many \
+                 kg/m^3 in place of its own (train.object_density)"
+            ),
+        ));
+    }
     Ok(v)
 }
 
@@ -963,7 +974,7 @@ mod tests {
     }
 
     #[test]
-    fn a_policy_of_a_stiffer_character_says_so() {
+    fn a_policy_of_a_stiffer_character_or_a_lighter_ball_says_so() {
         let sk = Skeleton::MocapHumanoid;
         let od = obs_dim(sk, 1, 0);
         let a = agent(od, 156, &[4], true);
@@ -972,6 +983,13 @@ mod tests {
         let m = policy_model(&stiff, &a).unwrap();
         let v = prop(&m, "pd_stiffness_scale").unwrap();
         assert!(v.starts_with("4: "), "{v}");
+        assert_eq!(prop(&m, "object_density"), None, "the ball's own density");
+        // a lighter ball is declared too
+        stiff.train.object_density = Some(83.0);
+        let m = policy_model(&stiff, &a).unwrap();
+        let v = prop(&m, "object_density").unwrap();
+        assert!(v.starts_with("83: "), "{v}");
+        assert!(!v.contains("  "), "one space between words: {v}");
     }
 
     #[test]

@@ -309,6 +309,15 @@ pub struct TrainConfig {
     /// (with `sim_start_prob`). Not written when 30 (the default).
     #[serde(skip_serializing_if = "is_default_sim_start_after")]
     pub sim_start_after: usize,
+    /// Density of every simulated object, kg/m^3, in place of its own, in
+    /// training and in the evaluation of the policy. `None` (the default):
+    /// each object's own, the ball's 1000 kg/m^3 (7.24 kg at radius
+    /// 0.12 m; `skillmimic/data/assets/urdf/ball.urdf` sets no mass, so
+    /// Isaac Gym's default density makes it). About 83 gives a basketball's
+    /// mass, 0.6 kg (FIBA: 567-650 g). Not in the paper or the reference
+    /// code. Not written when absent.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub object_density: Option<f64>,
 }
 
 fn is_default_sim_start_after(x: &usize) -> bool {
@@ -472,6 +481,7 @@ impl Default for TrainConfig {
             ball_clock_frames: 0,
             sim_start_prob: 0.0,
             sim_start_after: crate::rl::humanoid::SIM_START_AFTER,
+            object_density: None,
         }
     }
 }
@@ -561,6 +571,9 @@ impl crate::config::Validate for TrainConfig {
         )?;
         c.range("sim_start_prob", self.sim_start_prob, 0.0, 1.0)?;
         c.count("sim_start_after", self.sim_start_after as u64, 1, 100_000)?;
+        if let Some(d) = self.object_density {
+            c.range("object_density", d, 1.0, 1e5)?;
+        }
         if self.object_assist > 0.0 && self.object_assist_samples == 0 {
             anyhow::bail!(
                 "{stage}.object_assist = {} needs {stage}.object_assist_samples > 0 (the samples over which it fades)",

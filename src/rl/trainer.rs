@@ -143,7 +143,12 @@ impl Setup {
                 );
             }
         }
-        let objects = objects::load_all(&first.objects, &root)?;
+        let mut objects = objects::load_all(&first.objects, &root)?;
+        if let Some(d) = cfg.object_density {
+            for o in &mut objects {
+                o.density = d as f32;
+            }
+        }
         let sim = SimOptions {
             pd_stiffness_scale: cfg.pd_stiffness_scale as f32,
             ..SimOptions::for_fps(first.fps as f64)
