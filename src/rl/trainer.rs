@@ -144,11 +144,7 @@ impl Setup {
             }
         }
         let mut objects = objects::load_all(&first.objects, &root)?;
-        if let Some(d) = cfg.object_density {
-            for o in &mut objects {
-                o.density = d as f32;
-            }
-        }
+        objects::set_density(&mut objects, cfg.object_density.map(|d| d as f32));
         let sim = SimOptions {
             pd_stiffness_scale: cfg.pd_stiffness_scale as f32,
             ..SimOptions::for_fps(first.fps as f64)

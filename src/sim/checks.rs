@@ -130,11 +130,7 @@ impl ReplayPhysics {
 
     /// `objects` with their density replaced, when one is set.
     pub fn objects(&self, objects: &mut [ObjectSpec]) {
-        if let Some(d) = self.object_density {
-            for o in objects {
-                o.density = d;
-            }
-        }
+        super::objects::set_density(objects, self.object_density);
     }
 }
 

@@ -137,6 +137,18 @@ pub fn load_all(names: &[String], data_root: &Path) -> Result<Vec<ObjectSpec>> {
         .collect()
 }
 
+/// Replace every object's density by `density`, kg/m^3, when one is given
+/// (`train.object_density`, `check-ball.physics.object_density`); `None`
+/// keeps each object's own. The mass follows from the shape's volume when
+/// a world is built.
+pub fn set_density(objects: &mut [ObjectSpec], density: Option<f32>) {
+    if let Some(d) = density {
+        for o in objects {
+            o.density = d;
+        }
+    }
+}
+
 /// Shapes built from files, once per process.
 fn cached(path: &Path, build: impl FnOnce(&Path) -> Result<SharedShape>) -> Result<SharedShape> {
     static CACHE: OnceLock<Mutex<HashMap<std::path::PathBuf, SharedShape>>> = OnceLock::new();
