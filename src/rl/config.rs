@@ -336,7 +336,8 @@ fn is_zero_f64(x: &f64) -> bool {
     *x == 0.0
 }
 
-fn is_zero_usize(x: &usize) -> bool {
+/// Serde's `skip_serializing_if` for a count that is 0.
+pub(crate) fn is_zero_usize(x: &usize) -> bool {
     *x == 0
 }
 

@@ -487,12 +487,8 @@ struct RankState {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     sim_pool: Vec<SimStart>,
     /// The pool slot the next state replaces once it is full.
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "super::config::is_zero_usize")]
     sim_next: usize,
-}
-
-fn is_zero(x: &usize) -> bool {
-    *x == 0
 }
 
 /// A ChaCha8 generator's position.
