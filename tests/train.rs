@@ -136,6 +136,10 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.sim_start_after=5",
             "--set",
             "train.object_density=83",
+            "--set",
+            "train.energy_bonus=0.25",
+            "--set",
+            "train.energy_bonus_scale=0.05",
         ],
     );
 }
@@ -1126,6 +1130,76 @@ fn reward_weight_overrides_change_the_training_reward_not_the_reported_sm() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("train.reward_weights.rel"), "{e}");
+}
+
+#[test]
+fn the_energy_bonus_adds_to_the_training_reward_not_the_reported_sm() {
+    // `train.energy_bonus = w`: every step with a reference gains
+    // w exp(-k (E_sim - E_ref)^2), in (0, w]; the SM reward that training
+    // reports is scored as before
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        ..TrainConfig::default()
+    };
+    let (_dir, s) = ballplay_setup(&base);
+    let run = |cfg: &TrainConfig| {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let n = 4;
+        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
+        let zeros = vec![0f32; n * env.act_dim()];
+        for _ in 0..30 {
+            env.step(&zeros, &mut rng).unwrap();
+        }
+        env.take_stats()
+    };
+    let paper = run(&base);
+    assert_eq!(paper.reward_sum, paper.sm_sum);
+    let w = 0.25;
+    let with = |k: f64| {
+        run(&TrainConfig {
+            energy_bonus: w,
+            energy_bonus_scale: k,
+            ..base.clone()
+        })
+    };
+    let b = with(skillaug::reward::ENERGY_BONUS_SCALE);
+    // the same rollout (zero actions, same seed), scored the paper's way
+    assert_eq!(b.steps, paper.steps);
+    assert_eq!(b.sm_sum, paper.sm_sum);
+    let bonus = b.reward_sum - b.sm_sum;
+    let most = w * b.steps as f64;
+    eprintln!("bonus {bonus:.3} over {} steps (at most {most})", b.steps);
+    assert!(bonus > 0.0 && bonus <= most + 1e-9, "{bonus} vs {most}");
+    // a ball that falls as the clip's at first keeps most of the bonus
+    // (a tenth at least), and a steeper scale pays less for the same balls
+    assert!(bonus > 0.1 * most, "{bonus} vs {most}");
+    let steep = with(1.0);
+    assert_eq!(steep.sm_sum, paper.sm_sum);
+    let steep_bonus = steep.reward_sum - steep.sm_sum;
+    assert!(steep_bonus < bonus, "{steep_bonus} vs {bonus}");
+    // out of range: refused, naming the key
+    for (bad, key) in [
+        (
+            TrainConfig {
+                energy_bonus: -0.1,
+                ..base.clone()
+            },
+            "train.energy_bonus",
+        ),
+        (
+            TrainConfig {
+                energy_bonus: w,
+                energy_bonus_scale: 0.0,
+                ..base.clone()
+            },
+            "train.energy_bonus_scale",
+        ),
+    ] {
+        let e = skillaug::config::Validate::validate(&bad, "train")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(key), "{e}");
+    }
 }
 
 #[test]

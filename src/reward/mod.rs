@@ -498,6 +498,27 @@ fn object_energies(s: &State) -> impl Iterator<Item = f64> + '_ {
         })
 }
 
+/// Default of the scale k of [`energy_bonus`], (kg/J)^2: a ball whose
+/// energy per unit mass is 5 J/kg short of the reference's (about half a
+/// metre of bounce) earns exp(-0.5) of the bonus.
+pub const ENERGY_BONUS_SCALE: f64 = 0.02;
+
+/// The additive ball-energy bonus of `train.energy_bonus`, added to the
+/// training reward (the SM or DM reward) at every step of a class with an
+/// object: `weight * exp(-scale * e.oe)`, with `e.oe` the squared error of
+/// the ball's mechanical energy per unit mass against the reference's
+/// ([`Errors::oe`], (J/kg)^2; `scale` in (kg/J)^2). In [0, weight].
+///
+/// Not in the paper or the reference code. Unlike the multiplicative `oe`
+/// weight of the object factor (Eq. 14), which a step with a poorly tracked
+/// body scores near 0 whatever the ball does, the bonus pays for the bounce
+/// a push bought from the step of the release on, whatever the body's
+/// factors: a task reward beside the imitation reward, as AMP (Peng et al.
+/// 2021) adds its task reward to its style reward.
+pub fn energy_bonus(e: &Errors, weight: f64, scale: f64) -> f64 {
+    weight * (-scale * e.oe).exp()
+}
+
 /// Errors of `sim` against `reference`, raw root exp-maps.
 pub fn errors(sim: &State, reference: &State, sk: Skeleton) -> Errors {
     errors_with(sim, reference, sk, RootRot::Raw)

@@ -170,6 +170,39 @@ fn the_energy_term_scores_the_bounce_bought_not_the_phase() {
 }
 
 #[test]
+fn the_energy_bonus_pays_its_weight_for_the_reference_bounce_and_less_for_a_softer_one() {
+    // reference ball: 0.5 m high, falling at 1 m/s (E = 9.81 * 0.5 + 0.5)
+    let r = state(3);
+    let w = 0.25;
+    let k = ENERGY_BONUS_SCALE;
+    // a ball on the reference's flight: the whole weight
+    let mut later = r.clone();
+    later.obj_pos[2] = 0.3;
+    later.obj_linvel[2] = -(1.0 + 2.0 * GRAVITY * 0.2).sqrt() as f32;
+    let full = energy_bonus(&errors(&later, &r, SK), w, k);
+    assert!((full - w).abs() < 1e-6, "{full}");
+    // a ball pushed too softly (at rest at the same height, 0.5 J/kg
+    // short): w exp(-k 0.25), and less the softer it is
+    let mut soft = r.clone();
+    soft.obj_linvel[2] = 0.0;
+    let e = errors(&soft, &r, SK);
+    let b = energy_bonus(&e, w, k);
+    assert!((b - w * (-k * 0.25).exp()).abs() < 1e-9, "{b}");
+    let mut low = soft.clone();
+    low.obj_pos[2] = 0.12;
+    let lower = energy_bonus(&errors(&low, &r, SK), w, k);
+    assert!(0.0 < lower && lower < b && b < full, "{lower} {b} {full}");
+    // 5 J/kg short (the reference's velocity, 5 / g m lower): exp(-0.5)
+    // of the weight at the default scale
+    let mut low = r.clone();
+    low.obj_pos[2] = (0.5 - 5.0 / GRAVITY) as f32;
+    let five = energy_bonus(&errors(&low, &r, SK), w, k);
+    assert!((five - w * (-0.5f64).exp()).abs() < 1e-6, "{five}");
+    // weight 0: nothing
+    assert_eq!(energy_bonus(&e, 0.0, k), 0.0);
+}
+
+#[test]
 fn alignment_removes_horizontal_offsets_and_turns() {
     let a = state(3);
     // Move b by (3, -1) and turn it by 0.7 rad about a's root.

@@ -318,6 +318,23 @@ pub struct TrainConfig {
     /// code. Not written when absent.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub object_density: Option<f64>,
+    /// Weight w of an additive ball-energy bonus in the training reward
+    /// (0 = off): w exp(-k (E_sim - E_ref)^2) at every step with a
+    /// reference, of a class with an object, with E the ball's mechanical
+    /// energy per unit mass, J/kg ([`crate::reward::energy_bonus`]). It
+    /// pays for the bounce a push buys from the release on, whatever the
+    /// body's factors. The reported SM reward is unchanged. Not in the
+    /// paper or the reference code. Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_f64")]
+    pub energy_bonus: f64,
+    /// Scale k of the energy bonus, (kg/J)^2. Not written when 0.02 (the
+    /// default, [`crate::reward::ENERGY_BONUS_SCALE`]).
+    #[serde(skip_serializing_if = "is_default_energy_bonus_scale")]
+    pub energy_bonus_scale: f64,
+}
+
+fn is_default_energy_bonus_scale(x: &f64) -> bool {
+    *x == crate::reward::ENERGY_BONUS_SCALE
 }
 
 fn is_default_sim_start_after(x: &usize) -> bool {
@@ -483,6 +500,8 @@ impl Default for TrainConfig {
             sim_start_prob: 0.0,
             sim_start_after: crate::rl::humanoid::SIM_START_AFTER,
             object_density: None,
+            energy_bonus: 0.0,
+            energy_bonus_scale: crate::reward::ENERGY_BONUS_SCALE,
         }
     }
 }
@@ -572,6 +591,8 @@ impl crate::config::Validate for TrainConfig {
         )?;
         c.range("sim_start_prob", self.sim_start_prob, 0.0, 1.0)?;
         c.count("sim_start_after", self.sim_start_after as u64, 1, 100_000)?;
+        c.range("energy_bonus", self.energy_bonus, 0.0, 100.0)?;
+        c.range("energy_bonus_scale", self.energy_bonus_scale, 1e-6, 100.0)?;
         if let Some(d) = self.object_density {
             c.range("object_density", d, 1.0, 1e5)?;
         }

@@ -274,6 +274,15 @@ pub struct EnvConfig {
     /// Policy steps into an episode before its states enter the pool of
     /// [`EnvConfig::sim_start_prob`] (read only when that is > 0).
     pub sim_start_after: usize,
+    /// Weight w of the additive ball-energy bonus
+    /// ([`crate::reward::energy_bonus`]): at every step with a reference,
+    /// of a class with an object, the training reward gains
+    /// w exp(-k (E_sim - E_ref)^2) (0 = off). The SM reward that training
+    /// and evaluation report is unchanged. Not in the paper or the
+    /// reference code.
+    pub energy_bonus: f64,
+    /// Scale k of that bonus, (kg/J)^2 (read only when `energy_bonus` > 0).
+    pub energy_bonus_scale: f64,
 }
 
 /// Policy steps between two states a rollout leaves for the pool of
@@ -395,6 +404,8 @@ impl EnvConfig {
             ball_clock_frames: 0,
             sim_start_prob: 0.0,
             sim_start_after: SIM_START_AFTER,
+            energy_bonus: 0.0,
+            energy_bonus_scale: crate::reward::ENERGY_BONUS_SCALE,
         }
     }
 }
@@ -1243,6 +1254,15 @@ impl Ctx<'_> {
                     // `train.reward_weights`: the same errors, other weights
                     Method::Sm => reward::sm_terms(&e, smooth, r, &c, &ep.weights, opts).total,
                     Method::Dm => reward::dm_reward(&s, r, self.sk, &ep.weights, opts.root_rot),
+                };
+                let train = if self.cfg.energy_bonus > 0.0
+                    && !no_object_class(ep.class)
+                    && !r.obj_pos.is_empty()
+                {
+                    let k = self.cfg.energy_bonus_scale;
+                    train + reward::energy_bonus(&e, self.cfg.energy_bonus, k)
+                } else {
+                    train
                 };
                 (
                     Some(train),

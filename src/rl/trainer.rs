@@ -272,6 +272,8 @@ pub fn environment<'a>(
         ball_clock_frames: cfg.ball_clock_frames,
         sim_start_prob: cfg.sim_start_prob,
         sim_start_after: cfg.sim_start_after,
+        energy_bonus: cfg.energy_bonus,
+        energy_bonus_scale: cfg.energy_bonus_scale,
         nsi_follow: cfg.nsi && !cfg.stf,
         ats: cfg.ats,
         ats_params: s.ats_params,
