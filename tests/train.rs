@@ -1082,26 +1082,45 @@ fn blended_seams_turn_the_jump_into_a_transition() {
     assert!(blended < 0.75 * jump, "{blended} vs {jump}");
 }
 
-#[test]
-fn reward_weight_overrides_change_the_training_reward_not_the_reported_sm() {
+/// The statistics of 30 steps of 4 environments of `cfg` over `s` with
+/// zero actions and seed 5: the same rollout for every reward setting.
+fn zero_action_stats(
+    s: &skillaug::rl::trainer::Setup,
+    cfg: &TrainConfig,
+) -> skillaug::rl::humanoid::EnvStats {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let n = 4;
+    let mut env = environment(s, cfg, None, n, &mut rng).unwrap();
+    let zeros = vec![0f32; n * env.act_dim()];
+    for _ in 0..30 {
+        env.step(&zeros, &mut rng).unwrap();
+    }
+    env.take_stats()
+}
+
+/// DF's set-up with the paper's settings (its guard kept alive), those
+/// settings, and their [`zero_action_stats`], whose training reward is the
+/// SM reward (checked).
+fn dribble_with_the_papers_reward() -> (
+    tempfile::TempDir,
+    skillaug::rl::trainer::Setup,
+    TrainConfig,
+    skillaug::rl::humanoid::EnvStats,
+) {
     let base = TrainConfig {
         skills: vec!["run".into()],
         ..TrainConfig::default()
     };
-    let (_dir, s) = ballplay_setup(&base);
-    let run = |cfg: &TrainConfig| {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let n = 4;
-        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
-        let zeros = vec![0f32; n * env.act_dim()];
-        for _ in 0..30 {
-            env.step(&zeros, &mut rng).unwrap();
-        }
-        env.take_stats()
-    };
-    let paper = run(&base);
-    // the paper's SM: the training reward is the SM reward
+    let (dir, s) = ballplay_setup(&base);
+    let paper = zero_action_stats(&s, &base);
     assert_eq!(paper.reward_sum, paper.sm_sum);
+    (dir, s, base, paper)
+}
+
+#[test]
+fn reward_weight_overrides_change_the_training_reward_not_the_reported_sm() {
+    let (_dir, s, base, paper) = dribble_with_the_papers_reward();
+    let run = |cfg: &TrainConfig| zero_action_stats(&s, cfg);
     let heavy = TrainConfig {
         reward_weights: toml::from_str("opv = 5.0").unwrap(),
         ..base.clone()
@@ -1137,23 +1156,8 @@ fn the_energy_bonus_adds_to_the_training_reward_not_the_reported_sm() {
     // `train.energy_bonus = w`: every step with a reference gains
     // w exp(-k (E_sim - E_ref)^2), in (0, w]; the SM reward that training
     // reports is scored as before
-    let base = TrainConfig {
-        skills: vec!["run".into()],
-        ..TrainConfig::default()
-    };
-    let (_dir, s) = ballplay_setup(&base);
-    let run = |cfg: &TrainConfig| {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let n = 4;
-        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
-        let zeros = vec![0f32; n * env.act_dim()];
-        for _ in 0..30 {
-            env.step(&zeros, &mut rng).unwrap();
-        }
-        env.take_stats()
-    };
-    let paper = run(&base);
-    assert_eq!(paper.reward_sum, paper.sm_sum);
+    let (_dir, s, base, paper) = dribble_with_the_papers_reward();
+    let run = |cfg: &TrainConfig| zero_action_stats(&s, cfg);
     let w = 0.25;
     let with = |k: f64| {
         run(&TrainConfig {
