@@ -1258,6 +1258,7 @@ impl Ctx<'_> {
                 let train = if self.cfg.energy_bonus > 0.0
                     && !no_object_class(ep.class)
                     && !r.obj_pos.is_empty()
+                    && !s.obj_pos.is_empty()
                 {
                     let k = self.cfg.energy_bonus_scale;
                     train + reward::energy_bonus(&e, self.cfg.energy_bonus, k)
