@@ -68,7 +68,7 @@ fn record(run: &Path, pol: &Path, envs: usize, steps: usize) -> (Vec<f32>, Vec<f
         HeRuntime::new(enc, &s.lib).unwrap()
     });
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-    let mut env = environment(&s, &cfg, he, envs, &mut rng).unwrap();
+    let mut env = environment(&s, &cfg, he, envs, &[], &mut rng).unwrap();
     let agent = Agent::load(&pol.join("policy.safetensors"), &dev).unwrap();
     let (od, ad) = (env.obs_dim(), env.act_dim());
     assert_eq!((od, ad), (agent.obs_dim(), agent.act_dim()));

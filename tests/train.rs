@@ -414,7 +414,7 @@ fn episodes_end_by_falls_below_the_threshold_and_by_their_length() {
     let (_dir, s) = ballplay_setup(&cfg);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
     let n = 6;
-    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+    let mut env = environment(&s, &cfg, None, n, &[], &mut rng).unwrap();
     let od = env.obs_dim();
     assert_eq!(od, obs_dim(s.lib.skeleton, 1, 0));
     assert_eq!(od, 902);
@@ -640,7 +640,7 @@ fn zero_action_trace<'a, T>(
     ) -> T,
 ) -> (Vec<Vec<T>>, skillaug::rl::humanoid::HumanoidEnv<'a>) {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let mut env = environment(s, cfg, None, n, &mut rng).unwrap();
+    let mut env = environment(s, cfg, None, n, &[], &mut rng).unwrap();
     env.set_recording(true);
     let zeros = vec![0f32; n * env.act_dim()];
     let mut trace: Vec<Vec<T>> = (0..n).map(|_| Vec::new()).collect();
@@ -924,7 +924,7 @@ fn states_rollouts_reach_start_later_episodes_on_the_frames_they_were_scored_aga
         }
     };
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-    let mut env = environment(&s, &cfg, None, 1, &mut rng).unwrap();
+    let mut env = environment(&s, &cfg, None, 1, &[], &mut rng).unwrap();
     env.set_recording(true);
     let zeros = vec![0f32; env.act_dim()];
     let (mut t, mut captured, mut moved, mut starts) = (0usize, 0, 0, 0);
@@ -1023,7 +1023,7 @@ fn blended_seams_turn_the_jump_into_a_transition() {
         };
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let n = 4;
-        let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+        let mut env = environment(&s, &cfg, None, n, &[], &mut rng).unwrap();
         env.set_recording(true);
         let zeros = vec![0f32; n * env.act_dim()];
         // per env: the last reference (clip, frame) and its body positions
@@ -1090,7 +1090,7 @@ fn zero_action_stats(
 ) -> skillaug::rl::humanoid::EnvStats {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     let n = 4;
-    let mut env = environment(s, cfg, None, n, &mut rng).unwrap();
+    let mut env = environment(s, cfg, None, n, &[], &mut rng).unwrap();
     let zeros = vec![0f32; n * env.act_dim()];
     for _ in 0..30 {
         env.step(&zeros, &mut rng).unwrap();
@@ -1217,7 +1217,7 @@ fn tracking_failures_end_episodes_above_the_fall_height() {
     let (_dir, s) = ballplay_setup(&cfg);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
     let n = 4;
-    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+    let mut env = environment(&s, &cfg, None, n, &[], &mut rng).unwrap();
     let od = env.obs_dim();
     let zeros = vec![0f32; n * env.act_dim()];
     let mut lost_above = 0;
@@ -1237,7 +1237,7 @@ fn tracking_failures_end_episodes_above_the_fall_height() {
         term_object_distance: 0.0,
         ..cfg
     };
-    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+    let mut env = environment(&s, &cfg, None, n, &[], &mut rng).unwrap();
     for _ in 0..40 {
         env.step(&zeros, &mut rng).unwrap();
     }
@@ -1249,7 +1249,7 @@ fn tracking_failures_end_episodes_above_the_fall_height() {
         term_object_error: 0.05,
         ..cfg.clone()
     };
-    let mut env = environment(&s, &tight, None, n, &mut rng).unwrap();
+    let mut env = environment(&s, &tight, None, n, &[], &mut rng).unwrap();
     for _ in 0..40 {
         env.step(&zeros, &mut rng).unwrap();
     }
@@ -1260,7 +1260,7 @@ fn tracking_failures_end_episodes_above_the_fall_height() {
         fall_height_by_skill: [("run".to_string(), 0.8f32)].into_iter().collect(),
         ..cfg
     };
-    let mut env = environment(&s, &cfg, None, n, &mut rng).unwrap();
+    let mut env = environment(&s, &cfg, None, n, &[], &mut rng).unwrap();
     let mut high = 0;
     for _ in 0..40 {
         let r = env.step(&zeros, &mut rng).unwrap();
@@ -1297,7 +1297,7 @@ fn a_grace_after_seams_keeps_the_key_point_rule_off_while_the_character_converge
     // seams seen)
     let ends_after_seams = |cfg: &TrainConfig| -> (usize, usize) {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
+        let mut env = environment(&s, cfg, None, n, &[], &mut rng).unwrap();
         env.set_recording(true);
         let od = env.obs_dim();
         let zeros = vec![0f32; n * env.act_dim()];
@@ -1357,7 +1357,7 @@ fn residual_actions_replay_the_reference_and_the_reference_block_follows_it() {
     let n = 4;
     let run_env = |cfg: &TrainConfig| -> (f64, usize, Vec<f32>, usize) {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
+        let mut env = environment(&s, cfg, None, n, &[], &mut rng).unwrap();
         let zeros = vec![0f32; n * env.act_dim()];
         let (mut sum, mut scored) = (0.0, 0);
         for t in 0..100 {
@@ -1413,7 +1413,7 @@ fn a_stiffer_drive_keeps_an_open_loop_replay_nearer_its_reference() {
         let s = setup_for(&run, cfg);
         assert_eq!(s.sim.pd_stiffness_scale, cfg.pd_stiffness_scale as f32);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
+        let mut env = environment(&s, cfg, None, n, &[], &mut rng).unwrap();
         let zeros = vec![0f32; n * env.act_dim()];
         let (mut sum, mut count) = (0.0, 0);
         for _ in 0..30 {
@@ -1483,7 +1483,7 @@ fn the_warm_start_fits_the_next_reference_pose() {
     };
     let (_dir, s) = ballplay_setup(&cfg);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-    let env = environment(&s, &cfg, None, 2, &mut rng).unwrap();
+    let env = environment(&s, &cfg, None, 2, &[], &mut rng).unwrap();
     let (obs, targets) = env.warm_start_data(&s.clips, 1, &[], &mut rng).unwrap();
     let rows = obs.len() / env.obs_dim();
     assert_eq!(targets.len(), rows * env.act_dim());
@@ -1574,7 +1574,7 @@ fn the_push_warm_start_fits_the_searched_offsets_inside_push_windows() {
     // one row per usable frame (no perturbed copies): zero residual
     // outside the windows, offset / pi inside
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-    let env = environment(&s, &cfg, None, 2, &mut rng).unwrap();
+    let env = environment(&s, &cfg, None, 2, &[], &mut rng).unwrap();
     let (obs, targets) = env.warm_start_data(&s.clips, 0, &pushes, &mut rng).unwrap();
     let ad = env.act_dim();
     let mut row = 0;
@@ -1688,7 +1688,7 @@ fn the_object_assist_pulls_the_ball_along_its_reference_and_fades_out() {
     // steps, m, and the mean SM object factor
     let run_env = |cfg: &TrainConfig, assist: f32| -> (f64, f64, f64) {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let mut env = environment(&s, cfg, None, n, &mut rng).unwrap();
+        let mut env = environment(&s, cfg, None, n, &[], &mut rng).unwrap();
         env.set_object_assist(assist);
         let zeros = vec![0f32; n * env.act_dim()];
         let (mut sum, mut most, mut count) = (0.0, 0f64, 0);

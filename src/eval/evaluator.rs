@@ -333,6 +333,27 @@ pub fn load_policy(
             );
         }
     }
+    for p in &meta.push_feed_forward {
+        let frames = lib
+            .clips
+            .iter()
+            .position(|r| r.name == p.clip)
+            .map(|c| lib.frames[c].frames);
+        let fits = frames.is_some_and(|n| p.start < p.release && p.release < n);
+        if !fits || p.offset.len() != meta.act_dim {
+            bail!(
+                "{}: the push_feed_forward offset of clip `{}`, frames {}..{}, does not fit \
+                 {} ({} values for {} actions)",
+                mp.display(),
+                p.clip,
+                p.start,
+                p.release,
+                input.display(),
+                p.offset.len(),
+                meta.act_dim
+            );
+        }
+    }
     let he_dir = match &meta.he_dir {
         Some(d) => {
             let p = PathBuf::from(d);
@@ -383,6 +404,19 @@ pub fn plan_cells(
         seam_masked_min: t.seam_masked_min,
         seam_match: t.seam_match,
         ball_clock_frames: t.ball_clock_frames,
+        // the clips are checked by `load_policy`
+        push_feed_forward: meta
+            .push_feed_forward
+            .iter()
+            .filter_map(|p| {
+                let clip = lib.clips.iter().position(|c| c.name == p.clip)?;
+                Some(crate::rl::humanoid::PushFeedForward {
+                    clip,
+                    frames: p.start..p.release,
+                    offset: p.offset.clone(),
+                })
+            })
+            .collect(),
         ..EnvConfig::training(t.method)
     };
     let class_of = |skill: &str| -> u32 {

@@ -884,6 +884,7 @@ mod tests {
             iterations: 0,
             samples: 0,
             ranks: 1,
+            push_feed_forward: Vec::new(),
         }
     }
 

@@ -331,6 +331,19 @@ pub struct TrainConfig {
     /// default, [`crate::reward::ENERGY_BONUS_SCALE`]).
     #[serde(skip_serializing_if = "is_default_energy_bonus_scale")]
     pub energy_bonus_scale: f64,
+    /// Push offsets as feed-forward: `"off"`, or `"arms"` / `"upper"`:
+    /// with `residual_action`, inside every push window of the training
+    /// clips the feed-forward PD targets add the offset that `skillaug
+    /// check-ball`'s push search finds on that joint group
+    /// ([`crate::sim::push::push_offsets`], default search settings, the
+    /// run's seed; [`crate::rl::humanoid::EnvConfig::push_feed_forward`]),
+    /// so the hand pushes harder than the clip's own targets make it
+    /// without the policy having to find the push. In training and in the
+    /// policy's evaluation (the offsets are written to `policy.meta.json`).
+    /// With `warm_start_push` as well, the warm start fits its offset on
+    /// top. Not in the paper or the reference code. Not written when off.
+    #[serde(skip_serializing_if = "is_push_off")]
+    pub push_feed_forward: WarmStartPush,
 }
 
 fn is_default_energy_bonus_scale(x: &f64) -> bool {
@@ -362,7 +375,8 @@ fn is_zero(x: &f32) -> bool {
     *x == 0.0
 }
 
-/// Which push offsets the warm start fits (`train.warm_start_push`).
+/// Which push offsets the warm start fits (`train.warm_start_push`), or
+/// the feed-forward adds (`train.push_feed_forward`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum WarmStartPush {
@@ -502,6 +516,7 @@ impl Default for TrainConfig {
             object_density: None,
             energy_bonus: 0.0,
             energy_bonus_scale: crate::reward::ENERGY_BONUS_SCALE,
+            push_feed_forward: WarmStartPush::Off,
         }
     }
 }
@@ -595,6 +610,12 @@ impl crate::config::Validate for TrainConfig {
         c.range("energy_bonus_scale", self.energy_bonus_scale, 1e-6, 100.0)?;
         if let Some(d) = self.object_density {
             c.range("object_density", d, 1.0, 1e5)?;
+        }
+        if self.push_feed_forward != WarmStartPush::Off && !self.residual_action {
+            anyhow::bail!(
+                "{stage}.push_feed_forward adds its offsets to the feed-forward targets of \
+                 {stage}.residual_action: set {stage}.residual_action = true, or push_feed_forward = \"off\""
+            );
         }
         if self.object_assist > 0.0 && self.object_assist_samples == 0 {
             anyhow::bail!(
@@ -709,6 +730,24 @@ pub struct PolicyMeta {
     /// without the field were one process).
     #[serde(default = "one_rank", skip_serializing_if = "is_one")]
     pub ranks: usize,
+    /// The push offsets of `train.push_feed_forward`, which evaluation
+    /// adds as training did (empty when off; not written then).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub push_feed_forward: Vec<PushOffsetMeta>,
+}
+
+/// One push window's feed-forward offset as `policy.meta.json` holds it
+/// ([`crate::rl::humanoid::PushFeedForward`] with the clip by name).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PushOffsetMeta {
+    /// Clip name.
+    pub clip: String,
+    /// First frame of the window.
+    pub start: usize,
+    /// The frame after the window's last (the release).
+    pub release: usize,
+    /// Offset of every joint, rad, `[J*3]` exp-map components.
+    pub offset: Vec<f32>,
 }
 
 fn one_rank() -> usize {

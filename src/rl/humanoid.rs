@@ -283,6 +283,29 @@ pub struct EnvConfig {
     pub energy_bonus: f64,
     /// Scale k of that bonus, (kg/J)^2 (read only when `energy_bonus` > 0).
     pub energy_bonus_scale: f64,
+    /// Push offsets added to the feed-forward PD targets of
+    /// [`EnvConfig::residual_action`] (`train.push_feed_forward`): at a
+    /// step from an unmasked reference frame `f` of clip `c` to frame
+    /// `f + 1` of the same clip under the same anchor, with `f` in a
+    /// window's `start..release`, the targets are the next frame's joint
+    /// exp-maps plus that window's offset, rad, so the hand pushes as the
+    /// push search found it could ([`crate::sim::push::push_offsets`])
+    /// before the policy's own part is added. Empty = none. In training
+    /// and in the policy's evaluation (the offsets travel in
+    /// `policy.meta.json`). Not in the paper or the reference code.
+    pub push_feed_forward: Vec<PushFeedForward>,
+}
+
+/// One push window's offset for [`EnvConfig::push_feed_forward`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct PushFeedForward {
+    /// Clip index in the library.
+    pub clip: usize,
+    /// The frames whose step gets the offset: `start..release`
+    /// ([`crate::sim::push::PushWindow`]).
+    pub frames: std::ops::Range<usize>,
+    /// Offset of every joint, rad, `[J*3]` exp-map components.
+    pub offset: Vec<f32>,
 }
 
 /// Policy steps between two states a rollout leaves for the pool of
@@ -406,6 +429,7 @@ impl EnvConfig {
             sim_start_after: SIM_START_AFTER,
             energy_bonus: 0.0,
             energy_bonus_scale: crate::reward::ENERGY_BONUS_SCALE,
+            push_feed_forward: Vec::new(),
         }
     }
 }
@@ -1394,22 +1418,35 @@ impl Ctx<'_> {
         if let Some(r) = self.reference(ep, ep.at + 1) {
             if res {
                 let lead = self.cfg.feed_forward_lead;
-                // a lead only along one clip: never across a seam's jump
+                // a lead or a push only along one clip: never across a
+                // seam's jump; the frame the step leaves
                 let along = |t: usize| ep.step_at(t).map(|(st, a)| (st.ref_clip, st.ref_frame, a));
-                let consecutive = match (along(ep.at), along(ep.at + 1)) {
-                    (Some((c0, Some(f0), a0)), Some((c1, Some(f1), a1))) => {
-                        c0 == c1 && f1 == f0 + 1 && a0 == a1
+                let from = match (along(ep.at), along(ep.at + 1)) {
+                    (Some((Some(c0), Some(f0), a0)), Some((Some(c1), Some(f1), a1)))
+                        if c0 == c1 && f1 == f0 + 1 && a0 == a1 =>
+                    {
+                        Some((c0 as usize, f0 as usize))
                     }
-                    _ => false,
+                    _ => None,
                 };
                 // the current frame is looked up only when a lead uses it
-                let now = (lead != 0.0 && consecutive)
+                let now = (lead != 0.0 && from.is_some())
                     .then(|| self.reference(ep, ep.at))
                     .flatten();
-                let e = match now {
+                let mut e = match now {
                     Some(now) => lead_target(&now.joint_rot, &r.joint_rot, lead),
                     None => r.joint_rot.clone(),
                 };
+                let masked = ep.step_at(ep.at).is_none_or(|(st, _)| st.masked);
+                let push = from.filter(|_| !masked).and_then(|(c, f)| {
+                    self.cfg
+                        .push_feed_forward
+                        .iter()
+                        .find(|p| p.clip == c && p.frames.contains(&f))
+                });
+                if let Some(p) = push {
+                    e.iter_mut().zip(&p.offset).for_each(|(e, o)| *e += o);
+                }
                 ep.ff = feed_forward(&e);
                 if self.cfg.velocity_feed_forward {
                     ep.ff_rates = self.ff_rates(&r.joint_rot, &r.joint_vel);

@@ -16,9 +16,10 @@
 //! the same number of ranks only.
 
 use super::comm::{fingerprint, Comm};
-use super::config::{PolicyMeta, TrainConfig, WarmStartPush};
+use super::config::{PolicyMeta, PushOffsetMeta, TrainConfig, WarmStartPush};
 use super::humanoid::{
-    EnvConfig, EnvParts, EnvStats, EpisodeRecord, HeRuntime, HumanoidEnv, JointSet, SimStart,
+    EnvConfig, EnvParts, EnvStats, EpisodeRecord, HeRuntime, HumanoidEnv, JointSet,
+    PushFeedForward, SimStart,
 };
 use super::{collect, Agent, EpisodeTracker, StepResult, VecEnv};
 use crate::augment::ats::{Ats, AtsParams};
@@ -28,6 +29,7 @@ use crate::augment::stf::{StfParams, StfSampler};
 use crate::motion::MotionLib;
 use crate::reward::{DatasetKind, RewardOptions, Weights};
 use crate::sim::mjcf::Model;
+use crate::sim::push::PushOffset;
 use crate::sim::{objects, SimOptions};
 use crate::table::io::StagedDir;
 use crate::table::train::{MetricRow, Metrics};
@@ -226,7 +228,9 @@ pub fn start_params(cfg: &TrainConfig, base: &StfParams) -> StfParams {
     stf
 }
 
-/// Build the training environment of `setup` with `n` worlds.
+/// Build the training environment of `setup` with `n` worlds; `pushes`
+/// are the feed-forward push offsets of `train.push_feed_forward`
+/// ([`searched_pushes`]; empty when off).
 ///
 /// # Errors
 /// As [`HumanoidEnv::new`].
@@ -235,6 +239,7 @@ pub fn environment<'a>(
     cfg: &TrainConfig,
     he: Option<HeRuntime>,
     n: usize,
+    pushes: &[PushOffset],
     rng: &mut ChaCha8Rng,
 ) -> Result<HumanoidEnv<'a>> {
     let env_cfg = EnvConfig {
@@ -274,6 +279,14 @@ pub fn environment<'a>(
         sim_start_after: cfg.sim_start_after,
         energy_bonus: cfg.energy_bonus,
         energy_bonus_scale: cfg.energy_bonus_scale,
+        push_feed_forward: pushes
+            .iter()
+            .map(|p| PushFeedForward {
+                clip: p.clip,
+                frames: p.window.start..p.window.release,
+                offset: p.offset.clone(),
+            })
+            .collect(),
         nsi_follow: cfg.nsi && !cfg.stf,
         ats: cfg.ats,
         ats_params: s.ats_params,
@@ -281,6 +294,37 @@ pub fn environment<'a>(
         ..EnvConfig::training(cfg.method)
     };
     environment_with(s, &s.clips, s.stf.clone(), env_cfg, he, n, rng)
+}
+
+/// The best offsets of every push window of `setup`'s training clips on
+/// the joint `group` ([`crate::sim::push::push_offsets`], its default
+/// search settings, `seed`); empty for [`WarmStartPush::Off`]. The same
+/// search serves `train.warm_start_push` and `train.push_feed_forward`.
+///
+/// # Errors
+/// As [`crate::sim::push::push_offsets`], under `key`.
+pub fn searched_pushes(
+    s: &Setup,
+    group: WarmStartPush,
+    seed: u64,
+    key: &str,
+) -> Result<Vec<PushOffset>> {
+    if group == WarmStartPush::Off {
+        return Ok(Vec::new());
+    }
+    crate::sim::push::push_offsets(
+        &s.lib,
+        &s.clips,
+        crate::sim::push::Scene {
+            model: &s.model,
+            objects: &s.objects,
+            opts: &s.sim,
+        },
+        &crate::sim::push::PushConfig::default(),
+        group == WarmStartPush::Upper,
+        seed,
+    )
+    .with_context(|| format!("train.{key}"))
 }
 
 /// Build an environment of `n` worlds over `setup`'s library that starts
@@ -810,7 +854,7 @@ fn rng_of(part: &RankState) -> Result<ChaCha8Rng> {
 pub struct WarmStart {
     /// The push windows whose frames fitted an offset
     /// (`train.warm_start_push`; empty when off).
-    pub pushes: Vec<crate::sim::push::PushOffset>,
+    pub pushes: Vec<PushOffset>,
     /// States fitted (this rank's).
     pub states: usize,
     /// Mean squared action error before and after.
@@ -871,6 +915,9 @@ pub struct Trainer<'a> {
     ats_base: Option<Ats>,
     /// The behaviour cloning before PPO of a fresh start.
     pub warm_start: Option<WarmStart>,
+    /// The feed-forward push offsets (`train.push_feed_forward`; empty
+    /// when off).
+    pub push_ff: Vec<PushOffset>,
     /// With `train.overlap_rollout`: the update's own generator (the
     /// rollout keeps `rng`), the rollout the next update learns from, and
     /// the copy of the policy that collects while the agent updates.
@@ -914,7 +961,8 @@ impl<'a> Trainer<'a> {
         if comm.rank() > 0 {
             rng.set_stream(comm.rank() as u64);
         }
-        let env = environment(s, cfg, he, n, &mut rng)?;
+        let push_ff = searched_pushes(s, cfg.push_feed_forward, seed, "push_feed_forward")?;
+        let env = environment(s, cfg, he, n, &push_ff, &mut rng)?;
         let mut ppo = cfg.ppo_config();
         if cfg.noise_correlation_joints != JointSet::All {
             // three action dimensions (an exp-map target) per joint
@@ -929,22 +977,7 @@ impl<'a> Trainer<'a> {
         let mut warm_start = None;
         if cfg.warm_start_epochs > 0 {
             let t = Instant::now();
-            let pushes = match cfg.warm_start_push {
-                WarmStartPush::Off => Vec::new(),
-                group => crate::sim::push::push_offsets(
-                    &s.lib,
-                    &s.clips,
-                    crate::sim::push::Scene {
-                        model: &s.model,
-                        objects: &s.objects,
-                        opts: &s.sim,
-                    },
-                    &crate::sim::push::PushConfig::default(),
-                    group == WarmStartPush::Upper,
-                    seed,
-                )
-                .context("train.warm_start_push")?,
-            };
+            let pushes = searched_pushes(s, cfg.warm_start_push, seed, "warm_start_push")?;
             let (obs, targets) =
                 env.warm_start_data(&s.clips, cfg.warm_start_copies, &pushes, &mut rng)?;
             let mse = agent.fit_mean(
@@ -979,6 +1012,7 @@ impl<'a> Trainer<'a> {
         };
         let mut t = Self::assemble(inp, env, agent, rng, progress)?;
         t.warm_start = warm_start;
+        t.push_ff = push_ff;
         Ok(t)
     }
 
@@ -1022,7 +1056,8 @@ impl<'a> Trainer<'a> {
             );
         }
         let mut throwaway = ChaCha8Rng::seed_from_u64(seed);
-        let mut env = environment(s, cfg, he, n, &mut throwaway)?;
+        let push_ff = searched_pushes(s, cfg.push_feed_forward, seed, "push_feed_forward")?;
+        let mut env = environment(s, cfg, he, n, &push_ff, &mut throwaway)?;
         env.restore(recs)?;
         env.set_sim_pool(part.sim_pool.clone(), part.sim_next)
             .with_context(|| format!("--resume: {}", out.display()))?;
@@ -1065,7 +1100,9 @@ impl<'a> Trainer<'a> {
             update_rng: part.update_rng.as_ref().map(RngState::rng).transpose()?,
             pending,
         };
-        Self::assemble(inp, env, agent, rng_of(&part)?, progress)
+        let mut t = Self::assemble(inp, env, agent, rng_of(&part)?, progress)?;
+        t.push_ff = push_ff;
+        Ok(t)
     }
 
     /// The trainer of a fresh or resumed run: the environment's statistics
@@ -1097,6 +1134,7 @@ impl<'a> Trainer<'a> {
             seed: inp.seed,
             ats_base,
             warm_start: None,
+            push_ff: Vec::new(),
             update_rng: progress.update_rng,
             pending: progress.pending,
             actor: None,
@@ -1277,6 +1315,16 @@ impl<'a> Trainer<'a> {
                     "; no effect: warm start off"
                 } else {
                     ""
+                }
+            ));
+        }
+        if cfg.push_feed_forward != WarmStartPush::Off {
+            on.push(format!(
+                "push_feed_forward={} (push windows' searched offsets in the feed-forward targets)",
+                if cfg.push_feed_forward == WarmStartPush::Upper {
+                    "upper"
+                } else {
+                    "arms"
                 }
             ));
         }
@@ -1613,6 +1661,16 @@ impl<'a> Trainer<'a> {
             iterations: self.iteration,
             samples: self.samples,
             ranks: self.comm.size(),
+            push_feed_forward: self
+                .push_ff
+                .iter()
+                .map(|p| PushOffsetMeta {
+                    clip: s.lib.clips[p.clip].name.clone(),
+                    start: p.window.start,
+                    release: p.window.release,
+                    offset: p.offset.clone(),
+                })
+                .collect(),
         }
     }
 }

@@ -105,6 +105,19 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
                 );
             }
         }
+        for p in &t.push_ff {
+            println!(
+                "train: push feed-forward {} frames {}..{}: ball v_z at release {:.2} m/s with the clip's own targets, {:.2} with the offset (RMS {:.2} rad, largest {:.2}), clip {:.2}",
+                s.lib.clips[p.clip].name,
+                p.window.start,
+                p.window.release,
+                p.own.vel[2],
+                p.found.vel[2],
+                p.found.rms_offset,
+                p.found.max_offset,
+                p.vel_ref[2]
+            );
+        }
         println!("{}", t.describe(sw.resume));
     }
     let dataset = s.lib.clips[0].dataset.clone();
