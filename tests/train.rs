@@ -145,9 +145,11 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
 }
 
 #[test]
-fn a_run_with_the_push_warm_start_killed_and_resumed_matches_too() {
+fn a_run_with_the_push_warm_start_and_feed_forward_killed_and_resumed_matches_too() {
     // the push search runs before the warm start, with the run's seed, on
-    // DF's push windows; its offsets live on in the fitted weights
+    // DF's push windows; its offsets live on in the fitted weights, and
+    // (`push_feed_forward`, searched again on a resume) in the
+    // feed-forward targets of every step inside a window
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -157,8 +159,150 @@ fn a_run_with_the_push_warm_start_killed_and_resumed_matches_too() {
             "train.residual_action=true",
             "--set",
             "train.warm_start_push=arms",
+            "--set",
+            "train.push_feed_forward=arms",
         ],
     );
+}
+
+#[test]
+fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
+    // `train.push_feed_forward = "arms"` on DF's clips cut where their
+    // seams are most similar: one push window is left (`run`, frames
+    // 2..13); its searched offset travels in policy.meta.json, and the
+    // evaluation adds it exactly where training did
+    let (dir, run) = ingested("ballplay");
+    let from = run.to_str().unwrap();
+    let with = dir.path().join("with");
+    ok(&train_args(
+        from,
+        with.to_str().unwrap(),
+        &[
+            "--set",
+            "train.skills=[\"run\"]",
+            "--set",
+            "train.residual_action=true",
+            "--set",
+            "train.seam_leave_search_s=0.67",
+            "--set",
+            "train.push_feed_forward=arms",
+            "--set",
+            "train.samples=32",
+            "--seed",
+            "3",
+        ],
+    ));
+    let meta_path = with.join("policy.meta.json");
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&meta_path).unwrap()).unwrap();
+    let pushes = meta["push_feed_forward"].as_array().expect("the offsets");
+    assert_eq!(pushes.len(), 1, "{pushes:?}");
+    let p = &pushes[0];
+    assert_eq!(p["clip"], "013_018pickle_run_4");
+    assert_eq!((p["start"].as_u64(), p["release"].as_u64()), (Some(2), Some(13)));
+    let offset: Vec<f64> = p["offset"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    assert_eq!(offset.len(), 156);
+    assert!(offset.iter().any(|x| x.abs() > 0.1), "{offset:?}");
+
+    // the same policy without the offsets
+    let without = dir.path().join("without");
+    std::fs::create_dir_all(&without).unwrap();
+    for f in ["policy.safetensors", "policy.json", "policy.meta.json"] {
+        std::fs::copy(with.join(f), without.join(f)).unwrap();
+    }
+    let mut stripped = meta.clone();
+    stripped.as_object_mut().unwrap().remove("push_feed_forward");
+    stripped["train"]
+        .as_object_mut()
+        .unwrap()
+        .remove("push_feed_forward");
+    std::fs::write(
+        without.join("policy.meta.json"),
+        serde_json::to_string(&stripped).unwrap(),
+    )
+    .unwrap();
+    let record = |policy: &std::path::Path, name: &str| {
+        let out = dir.path().join(name);
+        eval_quiet(
+            from,
+            policy,
+            &out,
+            &[
+                "--set",
+                "eval.metrics=[\"sr\"]",
+                "--set",
+                "eval.trials=8",
+                "--set",
+                "eval.steps=60",
+                "--record",
+                "8",
+            ],
+        );
+        skillaug::table::rollout::read(&out.join("eval_rollouts.parquet")).unwrap()
+    };
+    let (a, b) = (record(&with, "ev-with"), record(&without, "ev-without"));
+    assert_eq!(a.len(), b.len());
+    let push_clip = skillaug::table::clips::read(&run.join("clips.parquet"))
+        .unwrap()
+        .iter()
+        .find(|c| c.name == "013_018pickle_run_4")
+        .unwrap()
+        .clip_id;
+    // a step leaves frame f - 1 of `run` and is scored against frame f,
+    // consecutive in the clip (not the jump of a seam): the offset acts
+    // there for f - 1 in 2..13; the first step's start frame is the one
+    // before its reference
+    type Step = skillaug::table::rollout::RolloutStep;
+    let pushed = |t: &[Step], k: usize| match t[k].reference {
+        Some((c, f)) if c == push_clip && (3..=13).contains(&f) => {
+            k == 0 || t[k - 1].reference == Some((c, f - 1))
+        }
+        _ => false,
+    };
+    let (mut changed, mut same) = (0, 0);
+    for trial in 0..8 {
+        let pick = |v: &[Step]| -> Vec<Step> {
+            v.iter().filter(|s| s.trial == trial).cloned().collect()
+        };
+        let (ta, tb) = (pick(&a), pick(&b));
+        assert_eq!(ta.len(), 60);
+        let first_push = (0..ta.len()).find(|&k| pushed(&ta, k));
+        let first_change = ta.iter().zip(&tb).position(|(x, y)| x.posture != y.posture);
+        // the trials are the same up to the first step the offset acts on,
+        // and differ from it on; a trial that never passes through the
+        // window is the same throughout
+        assert_eq!(first_change, first_push, "trial {trial}");
+        if first_push.is_some() {
+            changed += 1;
+        } else {
+            same += 1;
+        }
+    }
+    eprintln!("{changed} trials pushed, {same} the same");
+    assert!(changed > 0, "no trial passed through the window");
+
+    // offsets that do not fit the library are refused, naming the clip
+    let mut bad = meta.clone();
+    bad["push_feed_forward"][0]["clip"] = "013_018pickle_run_9".into();
+    std::fs::write(&meta_path, serde_json::to_string(&bad).unwrap()).unwrap();
+    let err = fails(&[
+        "eval",
+        "--from",
+        from,
+        "--policy",
+        with.to_str().unwrap(),
+        "--out",
+        dir.path().join("ev-bad").to_str().unwrap(),
+    ]);
+    assert!(err.contains("push_feed_forward") && err.contains("013_018pickle_run_9"), "{err}");
+    assert!(!dir.path().join("ev-bad").exists());
+    // and without residual actions the setting is refused
+    refused(&run, &["train.push_feed_forward=arms"], "train.residual_action");
 }
 
 #[test]
