@@ -850,6 +850,17 @@ fn metadata(
             ),
         ));
     }
+    if meta.train.ball_inertia == crate::sim::objects::BallInertia::Shell {
+        // the policy was trained on a ball that spins more easily: a
+        // consumer must simulate it the same way to reproduce it
+        v.push((
+            "ball_inertia",
+            "shell: trained and evaluated with the ball's rotational inertia that of a thin \
+             shell of the same mass, 2/3 m r^2 instead of a solid sphere's 2/5 m r^2 \
+             (train.ball_inertia)"
+                .to_string(),
+        ));
+    }
     Ok(v)
 }
 

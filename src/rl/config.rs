@@ -344,6 +344,18 @@ pub struct TrainConfig {
     /// top. Not in the paper or the reference code. Not written when off.
     #[serde(skip_serializing_if = "is_push_off")]
     pub push_feed_forward: WarmStartPush,
+    /// Rotational inertia of the ball in training and in the policy's
+    /// evaluation: `"solid"` (2/5 m r^2, the reference's URDF sphere) or
+    /// `"shell"` (2/3 m r^2 with the same mass, a basketball's), which
+    /// keeps less of its horizontal speed through a bounce
+    /// ([`crate::sim::objects::BallInertia`]). Not in the paper or the
+    /// reference code. Not written when solid.
+    #[serde(skip_serializing_if = "is_solid")]
+    pub ball_inertia: crate::sim::objects::BallInertia,
+}
+
+fn is_solid(b: &crate::sim::objects::BallInertia) -> bool {
+    *b == crate::sim::objects::BallInertia::Solid
 }
 
 fn is_default_energy_bonus_scale(x: &f64) -> bool {
@@ -517,6 +529,7 @@ impl Default for TrainConfig {
             energy_bonus: 0.0,
             energy_bonus_scale: crate::reward::ENERGY_BONUS_SCALE,
             push_feed_forward: WarmStartPush::Off,
+            ball_inertia: crate::sim::objects::BallInertia::Solid,
         }
     }
 }

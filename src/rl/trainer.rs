@@ -147,6 +147,7 @@ impl Setup {
         }
         let mut objects = objects::load_all(&first.objects, &root)?;
         objects::set_density(&mut objects, cfg.object_density.map(|d| d as f32));
+        objects::set_ball_inertia(&mut objects, cfg.ball_inertia);
         let sim = SimOptions {
             pd_stiffness_scale: cfg.pd_stiffness_scale as f32,
             ..SimOptions::for_fps(first.fps as f64)
@@ -1317,6 +1318,9 @@ impl<'a> Trainer<'a> {
                     ""
                 }
             ));
+        }
+        if cfg.ball_inertia == crate::sim::objects::BallInertia::Shell {
+            on.push("ball_inertia=shell (2/3 m r^2)".to_string());
         }
         if cfg.push_feed_forward != WarmStartPush::Off {
             on.push(format!(

@@ -62,6 +62,9 @@ pub struct ReplayPhysics {
     /// is 1000: 7.24 kg; a basketball of 0.6 kg and radius 0.12 m has
     /// about 83). Absent: each object's own.
     pub object_density: Option<f32>,
+    /// Rotational inertia of the ball: `"solid"` (the default, the
+    /// reference's) or `"shell"` (a basketball's, the same mass).
+    pub ball_inertia: super::objects::BallInertia,
 }
 
 impl Default for ReplayPhysics {
@@ -74,6 +77,7 @@ impl Default for ReplayPhysics {
             kp_scale: 1.0,
             kd_scale: 1.0,
             object_density: None,
+            ball_inertia: super::objects::BallInertia::Solid,
         }
     }
 }
@@ -128,9 +132,11 @@ impl ReplayPhysics {
         m
     }
 
-    /// `objects` with their density replaced, when one is set.
+    /// `objects` with their density replaced, when one is set, and the
+    /// ball's inertia.
     pub fn objects(&self, objects: &mut [ObjectSpec]) {
         super::objects::set_density(objects, self.object_density);
+        super::objects::set_ball_inertia(objects, self.ball_inertia);
     }
 }
 

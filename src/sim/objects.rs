@@ -44,6 +44,41 @@ pub struct ObjectSpec {
     pub damping: [f32; 2],
     /// How the shape was made (recorded in run manifests).
     pub source: String,
+    /// Rotational inertia of a sphere shape: solid (rapier's from the
+    /// density, 2/5 m r^2, as Isaac Gym gives the reference's URDF sphere)
+    /// or a thin shell of the same mass (2/3 m r^2, a basketball's);
+    /// ignored for other shapes ([`set_ball_inertia`]).
+    pub inertia: BallInertia,
+}
+
+/// Rotational inertia of a ball (`train.ball_inertia`,
+/// `check-ball.physics.ball_inertia`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BallInertia {
+    /// A solid sphere: I = 2/5 m r^2 (the reference's URDF sphere, whose
+    /// inertia Isaac Gym computes from its density).
+    #[default]
+    Solid,
+    /// A thin spherical shell of the same mass: I = 2/3 m r^2, as a
+    /// basketball's. A ball that skids on the floor and leaves it rolling
+    /// keeps 3/5 of its horizontal speed instead of 5/7.
+    Shell,
+}
+
+impl ObjectSpec {
+    /// Mass, kg, and the principal moment of inertia, kg m^2, of a sphere
+    /// object under its [`ObjectSpec::inertia`]; `None` for other shapes
+    /// (whose mass properties follow from their density).
+    pub fn sphere_mass_properties(&self) -> Option<(f32, f32)> {
+        let r = self.shape.as_ball()?.radius;
+        let m = self.density * 4.0 / 3.0 * std::f32::consts::PI * r.powi(3);
+        let k = match self.inertia {
+            BallInertia::Solid => 0.4,
+            BallInertia::Shell => 2.0 / 3.0,
+        };
+        Some((m, k * m * r * r))
+    }
 }
 
 impl std::fmt::Debug for ObjectSpec {
@@ -70,6 +105,7 @@ impl ObjectSpec {
             friction: 1.0,
             damping: [0.01, 0.01],
             source: "sphere r=0.12 (ball.urdf)".into(),
+            inertia: BallInertia::Solid,
         }
     }
 
@@ -125,6 +161,7 @@ impl ObjectSpec {
             friction,
             damping: [0.01, 0.01],
             source,
+            inertia: BallInertia::Solid,
         })
     }
 }
@@ -146,6 +183,15 @@ pub fn set_density(objects: &mut [ObjectSpec], density: Option<f32>) {
         for o in objects {
             o.density = d;
         }
+    }
+}
+
+/// Give every sphere object the rotational inertia `inertia`
+/// (`train.ball_inertia`, `check-ball.physics.ball_inertia`); its mass
+/// stays the density's.
+pub fn set_ball_inertia(objects: &mut [ObjectSpec], inertia: BallInertia) {
+    for o in objects {
+        o.inertia = inertia;
     }
 }
 

@@ -662,9 +662,15 @@ impl World {
                     .soft_ccd_prediction(opts.soft_ccd)
                     .can_sleep(false),
             );
+            let collider = ColliderBuilder::new(o.shape.clone());
+            // a shell ball: the solid sphere's mass, a shell's inertia
+            let collider = match (o.inertia, o.sphere_mass_properties()) {
+                (super::objects::BallInertia::Shell, Some((m, i))) => collider
+                    .mass_properties(MassProperties::new(Vector::ZERO, m, Vector::splat(i))),
+                _ => collider.density(o.density),
+            };
             pw.colliders.insert_with_parent(
-                ColliderBuilder::new(o.shape.clone())
-                    .density(o.density)
+                collider
                     .restitution(o.restitution)
                     .friction(o.friction)
                     .user_data(Part::Object(k).tag()),
