@@ -140,6 +140,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.energy_bonus=0.25",
             "--set",
             "train.energy_bonus_scale=0.05",
+            "--set",
+            "train.ball_inertia=shell",
         ],
     );
 }
@@ -199,7 +201,10 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
     assert_eq!(pushes.len(), 1, "{pushes:?}");
     let p = &pushes[0];
     assert_eq!(p["clip"], "013_018pickle_run_4");
-    assert_eq!((p["start"].as_u64(), p["release"].as_u64()), (Some(2), Some(13)));
+    assert_eq!(
+        (p["start"].as_u64(), p["release"].as_u64()),
+        (Some(2), Some(13))
+    );
     let offset: Vec<f64> = p["offset"]
         .as_array()
         .unwrap()
@@ -216,7 +221,10 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
         std::fs::copy(with.join(f), without.join(f)).unwrap();
     }
     let mut stripped = meta.clone();
-    stripped.as_object_mut().unwrap().remove("push_feed_forward");
+    stripped
+        .as_object_mut()
+        .unwrap()
+        .remove("push_feed_forward");
     stripped["train"]
         .as_object_mut()
         .unwrap()
@@ -266,9 +274,8 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
     };
     let (mut changed, mut same) = (0, 0);
     for trial in 0..8 {
-        let pick = |v: &[Step]| -> Vec<Step> {
-            v.iter().filter(|s| s.trial == trial).cloned().collect()
-        };
+        let pick =
+            |v: &[Step]| -> Vec<Step> { v.iter().filter(|s| s.trial == trial).cloned().collect() };
         let (ta, tb) = (pick(&a), pick(&b));
         assert_eq!(ta.len(), 60);
         let first_push = (0..ta.len()).find(|&k| pushed(&ta, k));
@@ -299,10 +306,17 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
         "--out",
         dir.path().join("ev-bad").to_str().unwrap(),
     ]);
-    assert!(err.contains("push_feed_forward") && err.contains("013_018pickle_run_9"), "{err}");
+    assert!(
+        err.contains("push_feed_forward") && err.contains("013_018pickle_run_9"),
+        "{err}"
+    );
     assert!(!dir.path().join("ev-bad").exists());
     // and without residual actions the setting is refused
-    refused(&run, &["train.push_feed_forward=arms"], "train.residual_action");
+    refused(
+        &run,
+        &["train.push_feed_forward=arms"],
+        "train.residual_action",
+    );
 }
 
 #[test]

@@ -986,7 +986,7 @@ mod tests {
     }
 
     #[test]
-    fn a_policy_of_a_stiffer_character_or_a_lighter_ball_says_so() {
+    fn a_policy_of_a_stiffer_character_or_another_ball_says_so() {
         let sk = Skeleton::MocapHumanoid;
         let od = obs_dim(sk, 1, 0);
         let a = agent(od, 156, &[4], true);
@@ -1001,6 +1001,13 @@ mod tests {
         let m = policy_model(&stiff, &a).unwrap();
         let v = prop(&m, "object_density").unwrap();
         assert!(v.starts_with("83: "), "{v}");
+        assert!(!v.contains("  "), "one space between words: {v}");
+        // and a ball with a shell's inertia
+        assert_eq!(prop(&m, "ball_inertia"), None, "a solid ball");
+        stiff.train.ball_inertia = crate::sim::objects::BallInertia::Shell;
+        let m = policy_model(&stiff, &a).unwrap();
+        let v = prop(&m, "ball_inertia").unwrap();
+        assert!(v.starts_with("shell: "), "{v}");
         assert!(!v.contains("  "), "one space between words: {v}");
     }
 

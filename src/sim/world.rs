@@ -665,8 +665,9 @@ impl World {
             let collider = ColliderBuilder::new(o.shape.clone());
             // a shell ball: the solid sphere's mass, a shell's inertia
             let collider = match (o.inertia, o.sphere_mass_properties()) {
-                (super::objects::BallInertia::Shell, Some((m, i))) => collider
-                    .mass_properties(MassProperties::new(Vector::ZERO, m, Vector::splat(i))),
+                (super::objects::BallInertia::Shell, Some((m, i))) => {
+                    collider.mass_properties(MassProperties::new(Vector::ZERO, m, Vector::splat(i)))
+                }
                 _ => collider.density(o.density),
             };
             pw.colliders.insert_with_parent(
