@@ -71,23 +71,30 @@ fn pd_drives_track_a_reference_pose_with_the_root_held() {
     }
 }
 
-#[test]
-fn a_dropped_ball_rebounds_as_its_restitution_says() {
+/// A world of `ball` alone at `pos`, m, moving at `vel`, m/s, without
+/// spin; the humanoid is pinned out of the way.
+fn lone_ball(ball: ObjectSpec, pos: [f32; 3], vel: [f32; 3], opts: &SimOptions) -> World {
     let model = Model::for_skeleton(
         &data_root(),
         skillaug::motion::layout::Skeleton::MocapHumanoid,
     )
     .unwrap();
-    let opts = SimOptions::default();
-    let mut w = World::new(&model, &[ObjectSpec::ball()], &opts).unwrap();
+    let mut w = World::new(&model, &[ball], opts).unwrap();
     let mut s = w.get_state();
-    s.root_pos = [5.0, 5.0, 1.0]; // humanoid out of the way
-    s.obj_pos = vec![0.0, 0.0, 1.5];
+    s.root_pos = [5.0, 5.0, 1.0];
+    s.obj_pos = pos.to_vec();
     s.obj_rot = vec![0.0, 0.0, 0.0, 1.0];
-    s.obj_linvel = vec![0.0; 3];
+    s.obj_linvel = vel.to_vec();
     s.obj_angvel = vec![0.0; 3];
     w.set_state(&s).unwrap();
     w.pin_root(true);
+    w
+}
+
+#[test]
+fn a_dropped_ball_rebounds_as_its_restitution_says() {
+    let opts = SimOptions::default();
+    let mut w = lone_ball(ObjectSpec::ball(), [0.0, 0.0, 1.5], [0.0; 3], &opts);
     let r = skillaug::sim::objects::BALL_RADIUS;
     // fall, bounce, then the apex of the first rebound
     let (mut bounced, mut apex, mut prev_vz) = (false, 0f32, 0f32);
@@ -125,26 +132,13 @@ fn a_shell_ball_keeps_less_of_its_horizontal_speed_through_a_bounce() {
     // (3.4 m/s forward, 5.5 m/s down, no spin): friction that stopped the
     // skid would leave the ball rolling with 1 / (1 + k) of its horizontal
     // speed for I = k m r^2, 5/7 for a solid sphere and 3/5 for a shell
-    let model = Model::for_skeleton(
-        &data_root(),
-        skillaug::motion::layout::Skeleton::MocapHumanoid,
-    )
-    .unwrap();
     let opts = SimOptions::default();
     let kept = |inertia: skillaug::sim::objects::BallInertia| {
         let ball = ObjectSpec {
             inertia,
             ..ObjectSpec::ball()
         };
-        let mut w = World::new(&model, &[ball], &opts).unwrap();
-        let mut s = w.get_state();
-        s.root_pos = [5.0, 5.0, 1.0]; // humanoid out of the way
-        s.obj_pos = vec![0.0, 0.0, 0.5];
-        s.obj_rot = vec![0.0, 0.0, 0.0, 1.0];
-        s.obj_linvel = vec![3.4, 0.0, -5.5];
-        s.obj_angvel = vec![0.0; 3];
-        w.set_state(&s).unwrap();
-        w.pin_root(true);
+        let mut w = lone_ball(ball, [0.0, 0.0, 0.5], [3.4, 0.0, -5.5], &opts);
         let mass = w.object_mass(0);
         for _ in 0..(0.3 * opts.physics_hz) as usize {
             w.step_physics();

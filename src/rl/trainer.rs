@@ -1307,11 +1307,7 @@ impl<'a> Trainer<'a> {
         if cfg.warm_start_push != WarmStartPush::Off {
             on.push(format!(
                 "warm_start_push={} (push windows' searched offsets in the warm start{})",
-                if cfg.warm_start_push == WarmStartPush::Upper {
-                    "upper"
-                } else {
-                    "arms"
-                },
+                group_name(cfg.warm_start_push),
                 if cfg.warm_start_epochs == 0 {
                     "; no effect: warm start off"
                 } else {
@@ -1325,11 +1321,7 @@ impl<'a> Trainer<'a> {
         if cfg.push_feed_forward != WarmStartPush::Off {
             on.push(format!(
                 "push_feed_forward={} (push windows' searched offsets in the feed-forward targets)",
-                if cfg.push_feed_forward == WarmStartPush::Upper {
-                    "upper"
-                } else {
-                    "arms"
-                }
+                group_name(cfg.push_feed_forward)
             ));
         }
         if cfg.overlap_rollout {
@@ -1676,6 +1668,15 @@ impl<'a> Trainer<'a> {
                 })
                 .collect(),
         }
+    }
+}
+
+/// The recipe value of a push offsets' joint group.
+fn group_name(g: WarmStartPush) -> &'static str {
+    match g {
+        WarmStartPush::Off => "off",
+        WarmStartPush::Arms => "arms",
+        WarmStartPush::Upper => "upper",
     }
 }
 

@@ -92,31 +92,11 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
                 w.states, cfg.warm_start_epochs, w.mse.0, w.mse.1, w.secs
             );
             for p in &w.pushes {
-                println!(
-                    "train: push window {} frames {}..{}: ball v_z at release {:.2} m/s with the clip's own targets, {:.2} with the offset (RMS {:.2} rad, largest {:.2}), clip {:.2}",
-                    s.lib.clips[p.clip].name,
-                    p.window.start,
-                    p.window.release,
-                    p.own.vel[2],
-                    p.found.vel[2],
-                    p.found.rms_offset,
-                    p.found.max_offset,
-                    p.vel_ref[2]
-                );
+                print_push("push window", p, &s.lib);
             }
         }
         for p in &t.push_ff {
-            println!(
-                "train: push feed-forward {} frames {}..{}: ball v_z at release {:.2} m/s with the clip's own targets, {:.2} with the offset (RMS {:.2} rad, largest {:.2}), clip {:.2}",
-                s.lib.clips[p.clip].name,
-                p.window.start,
-                p.window.release,
-                p.own.vel[2],
-                p.found.vel[2],
-                p.found.rms_offset,
-                p.found.max_offset,
-                p.vel_ref[2]
-            );
+            print_push("push feed-forward", p, &s.lib);
         }
         println!("{}", t.describe(sw.resume));
     }
@@ -184,4 +164,20 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// One searched push window's line: the ball's vertical velocity at the
+/// release with the clip's own targets, with the offset, and the clip's.
+fn print_push(what: &str, p: &crate::sim::push::PushOffset, lib: &crate::motion::MotionLib) {
+    println!(
+        "train: {what} {} frames {}..{}: ball v_z at release {:.2} m/s with the clip's own targets, {:.2} with the offset (RMS {:.2} rad, largest {:.2}), clip {:.2}",
+        lib.clips[p.clip].name,
+        p.window.start,
+        p.window.release,
+        p.own.vel[2],
+        p.found.vel[2],
+        p.found.rms_offset,
+        p.found.max_offset,
+        p.vel_ref[2]
+    );
 }
