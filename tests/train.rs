@@ -147,11 +147,22 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
 }
 
 #[test]
-fn a_run_with_the_push_warm_start_and_feed_forward_killed_and_resumed_matches_too() {
+fn a_run_with_the_push_warm_start_killed_and_resumed_matches_too() {
     // the push search runs before the warm start, with the run's seed, on
-    // DF's push windows; its offsets live on in the fitted weights, and
-    // (`push_feed_forward`, searched again on a resume) in the
-    // feed-forward targets of every step inside a window
+    // DF's push windows; its offsets live on in the fitted weights
+    killed_and_resumed_on_df_with("train.warm_start_push=arms");
+}
+
+#[test]
+fn a_run_with_the_push_feed_forward_killed_and_resumed_matches_too() {
+    // the push search runs again on a resume, with the run's seed, and its
+    // offsets enter the feed-forward targets of every step inside a window
+    killed_and_resumed_on_df_with("train.push_feed_forward=arms");
+}
+
+/// [`killed_and_resumed_matches_uninterrupted`] on DF with residual
+/// actions and the setting `key_value`.
+fn killed_and_resumed_on_df_with(key_value: &str) {
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -160,9 +171,7 @@ fn a_run_with_the_push_warm_start_and_feed_forward_killed_and_resumed_matches_to
             "--set",
             "train.residual_action=true",
             "--set",
-            "train.warm_start_push=arms",
-            "--set",
-            "train.push_feed_forward=arms",
+            key_value,
         ],
     );
 }
@@ -244,11 +253,11 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
                 "--set",
                 "eval.metrics=[\"sr\"]",
                 "--set",
-                "eval.trials=8",
+                "eval.trials=48",
                 "--set",
                 "eval.steps=60",
                 "--record",
-                "8",
+                "48",
             ],
         );
         skillaug::table::rollout::read(&out.join("eval_rollouts.parquet")).unwrap()
@@ -272,8 +281,8 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
         }
         _ => false,
     };
-    let (mut changed, mut same) = (0, 0);
-    for trial in 0..8 {
+    let (mut changed, mut same, mut at_start) = (0, 0, 0);
+    for trial in 0..48 {
         let pick =
             |v: &[Step]| -> Vec<Step> { v.iter().filter(|s| s.trial == trial).cloned().collect() };
         let (ta, tb) = (pick(&a), pick(&b));
@@ -284,14 +293,21 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
         // and differ from it on; a trial that never passes through the
         // window is the same throughout
         assert_eq!(first_change, first_push, "trial {trial}");
+        if first_push == Some(0) {
+            // started on a window frame: pushed from its first step
+            at_start += 1;
+        }
         if first_push.is_some() {
             changed += 1;
         } else {
             same += 1;
         }
     }
-    eprintln!("{changed} trials pushed, {same} the same");
+    eprintln!("{changed} trials pushed ({at_start} from their first step), {same} the same");
     assert!(changed > 0, "no trial passed through the window");
+    // (the trials' starts are fixed by the evaluation's seed; one of
+    // these 48 starts on a window frame)
+    assert!(at_start > 0, "no trial started inside the window");
 
     // offsets that do not fit the library are refused, naming the clip
     let mut bad = meta.clone();
@@ -311,11 +327,21 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
         "{err}"
     );
     assert!(!dir.path().join("ev-bad").exists());
-    // and without residual actions the setting is refused
+    // without residual actions the setting is refused, and so is the push
+    // warm start beside it (it would fit the offset a second time)
     refused(
         &run,
         &["train.push_feed_forward=arms"],
         "train.residual_action",
+    );
+    refused(
+        &run,
+        &[
+            "train.residual_action=true",
+            "train.push_feed_forward=arms",
+            "train.warm_start_push=arms",
+        ],
+        "train.warm_start_push",
     );
 }
 

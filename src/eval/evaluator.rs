@@ -333,24 +333,34 @@ pub fn load_policy(
             );
         }
     }
-    for p in &meta.push_feed_forward {
-        let frames = lib
-            .clips
-            .iter()
-            .position(|r| r.name == p.clip)
-            .map(|c| lib.frames[c].frames);
-        let fits = frames.is_some_and(|n| p.start < p.release && p.release < n);
-        if !fits || p.offset.len() != meta.act_dim {
+    let on = meta.train.push_feed_forward != crate::rl::config::WarmStartPush::Off;
+    if on && meta.push_feed_forward.is_empty() {
+        bail!(
+            "{}: train.push_feed_forward is on but the description holds no push_feed_forward \
+             offsets (keep the file `skillaug train` wrote)",
+            mp.display()
+        );
+    }
+    for (i, p) in meta.push_feed_forward.iter().enumerate() {
+        let at = format!(
+            "{}: push_feed_forward[{i}] (clip `{}`, frames {}..{})",
+            mp.display(),
+            p.clip,
+            p.start,
+            p.release
+        );
+        let Some(c) = lib.clips.iter().position(|r| r.name == p.clip) else {
+            bail!("{at}: {} holds no such clip", input.display());
+        };
+        let n = lib.frames[c].frames;
+        if !(p.start < p.release && p.release < n) {
+            bail!("{at}: the clip has frames 0..{n} in {}", input.display());
+        }
+        if p.offset.len() != meta.act_dim || p.offset.iter().any(|x| !x.is_finite()) {
             bail!(
-                "{}: the push_feed_forward offset of clip `{}`, frames {}..{}, does not fit \
-                 {} ({} values for {} actions)",
-                mp.display(),
-                p.clip,
-                p.start,
-                p.release,
-                input.display(),
-                p.offset.len(),
-                meta.act_dim
+                "{at}: the offset needs {} finite values (one per action), it has {}",
+                meta.act_dim,
+                p.offset.len()
             );
         }
     }

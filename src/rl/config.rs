@@ -340,8 +340,10 @@ pub struct TrainConfig {
     /// so the hand pushes harder than the clip's own targets make it
     /// without the policy having to find the push. In training and in the
     /// policy's evaluation (the offsets are written to `policy.meta.json`).
-    /// With `warm_start_push` as well, the warm start fits its offset on
-    /// top. Not in the paper or the reference code. Not written when off.
+    /// Refused beside `warm_start_push` (which would fit the offset a
+    /// second time) and without `residual_action`. With
+    /// `feed_forward_lead` the offset is added to the extrapolated target.
+    /// Not in the paper or the reference code. Not written when off.
     #[serde(skip_serializing_if = "is_push_off")]
     pub push_feed_forward: WarmStartPush,
     /// Rotational inertia of the ball in training and in the policy's
@@ -623,6 +625,15 @@ impl crate::config::Validate for TrainConfig {
         c.range("energy_bonus_scale", self.energy_bonus_scale, 1e-6, 100.0)?;
         if let Some(d) = self.object_density {
             c.range("object_density", d, 1.0, 1e5)?;
+        }
+        if self.push_feed_forward != WarmStartPush::Off
+            && self.warm_start_push != WarmStartPush::Off
+        {
+            anyhow::bail!(
+                "{stage}.push_feed_forward already adds the searched offsets to the feed-forward \
+                 targets, which the warm start then fits as a zero residual; \
+                 {stage}.warm_start_push would add them a second time: set one of the two to \"off\""
+            );
         }
         if self.push_feed_forward != WarmStartPush::Off && !self.residual_action {
             anyhow::bail!(

@@ -290,8 +290,12 @@ pub struct EnvConfig {
     /// window's `start..release`, the targets are the next frame's joint
     /// exp-maps plus that window's offset, rad, so the hand pushes as the
     /// push search found it could ([`crate::sim::push::push_offsets`])
-    /// before the policy's own part is added. Empty = none. In training
-    /// and in the policy's evaluation (the offsets travel in
+    /// before the policy's own part is added (`push_window` in
+    /// src/rl/humanoid.rs has the exact rule; with a lead the offset is added to the
+    /// extrapolated target, which the replay of the search has not; targets
+    /// saturate at ±π rad here as everywhere in training). Masked steps
+    /// after a pushed one keep the pose without the offset. Empty = none.
+    /// In training and in the policy's evaluation (the offsets travel in
     /// `policy.meta.json`). Not in the paper or the reference code.
     pub push_feed_forward: Vec<PushFeedForward>,
 }
@@ -764,8 +768,13 @@ struct Episode {
     /// The encoder's activations of the last embedded `hist`.
     he_cache: EncoderCache,
     /// With residual actions: the coming step's feed-forward action, the
-    /// next reference frame's joint exp-maps / π (`[J*3]`); empty without.
+    /// next reference frame's joint exp-maps / π (`[J*3]`; extrapolated by
+    /// a lead, plus a push offset inside a window); empty without.
     ff: Vec<f32>,
+    /// When `ff` holds a push offset: the same action without it, which
+    /// masked steps after the push keep ([`EnvConfig::push_feed_forward`]);
+    /// empty otherwise.
+    ff_plain: Vec<f32>,
     /// With [`EnvConfig::velocity_feed_forward`]: the coming step's motor
     /// target velocities, rad/s (`[J*3]`); empty without.
     ff_rates: Vec<f32>,
@@ -1195,6 +1204,7 @@ impl Ctx<'_> {
             traj,
             ff: Vec::new(),
             ff_rates: Vec::new(),
+            ff_plain: Vec::new(),
             next_ref: None,
         };
         if self.cfg.residual_action {
@@ -1407,9 +1417,11 @@ impl Ctx<'_> {
 
     /// With residual actions or the reference observation: take the
     /// reference frame of step `ep.at + 1` when that step has an unmasked
-    /// one (else keep the last): its joint rotations as `ep.ff` (local,
-    /// so a continued frame's anchor does not change them), the anchored
-    /// state as `ep.next_ref`.
+    /// one (else keep the last, without a push offset): its joint
+    /// rotations as `ep.ff` (local, so a continued frame's anchor does not
+    /// change them; with [`EnvConfig::feed_forward_lead`] extrapolated,
+    /// and inside a window of [`EnvConfig::push_feed_forward`] plus its
+    /// offset), the anchored state as `ep.next_ref`.
     fn update_next(&self, ep: &mut Episode) {
         let (res, obs) = (self.cfg.residual_action, self.cfg.reference_obs);
         if !(res || obs) {
@@ -1418,36 +1430,28 @@ impl Ctx<'_> {
         if let Some(r) = self.reference(ep, ep.at + 1) {
             if res {
                 let lead = self.cfg.feed_forward_lead;
-                // a lead or a push only along one clip: never across a
-                // seam's jump; the frame the step leaves
+                // a lead only along one clip: never across a seam's jump
                 let along = |t: usize| ep.step_at(t).map(|(st, a)| (st.ref_clip, st.ref_frame, a));
-                let from = match (along(ep.at), along(ep.at + 1)) {
-                    (Some((Some(c0), Some(f0), a0)), Some((Some(c1), Some(f1), a1)))
-                        if c0 == c1 && f1 == f0 + 1 && a0 == a1 =>
-                    {
-                        Some((c0 as usize, f0 as usize))
+                let consecutive = match (along(ep.at), along(ep.at + 1)) {
+                    (Some((c0, Some(f0), a0)), Some((c1, Some(f1), a1))) => {
+                        c0 == c1 && f1 == f0 + 1 && a0 == a1
                     }
-                    _ => None,
+                    _ => false,
                 };
                 // the current frame is looked up only when a lead uses it
-                let now = (lead != 0.0 && from.is_some())
+                let now = (lead != 0.0 && consecutive)
                     .then(|| self.reference(ep, ep.at))
                     .flatten();
-                let mut e = match now {
+                let e = match now {
                     Some(now) => lead_target(&now.joint_rot, &r.joint_rot, lead),
                     None => r.joint_rot.clone(),
                 };
-                let masked = ep.step_at(ep.at).is_none_or(|(st, _)| st.masked);
-                let push = from.filter(|_| !masked).and_then(|(c, f)| {
-                    self.cfg
-                        .push_feed_forward
-                        .iter()
-                        .find(|p| p.clip == c && p.frames.contains(&f))
-                });
-                if let Some(p) = push {
-                    e.iter_mut().zip(&p.offset).for_each(|(e, o)| *e += o);
-                }
                 ep.ff = feed_forward(&e);
+                ep.ff_plain.clear();
+                if let Some(p) = self.push_window(ep) {
+                    let pushed: Vec<f32> = e.iter().zip(&p.offset).map(|(e, o)| e + o).collect();
+                    ep.ff_plain = std::mem::replace(&mut ep.ff, feed_forward(&pushed));
+                }
                 if self.cfg.velocity_feed_forward {
                     ep.ff_rates = self.ff_rates(&r.joint_rot, &r.joint_vel);
                 }
@@ -1455,7 +1459,56 @@ impl Ctx<'_> {
             if obs {
                 ep.next_ref = Some(r);
             }
+        } else if !ep.ff_plain.is_empty() {
+            // masked steps after a pushed one hold the pose, not the push
+            ep.ff = std::mem::take(&mut ep.ff_plain);
         }
+    }
+
+    /// The window of [`EnvConfig::push_feed_forward`] whose offset the
+    /// coming step (`ep.at` -> `ep.at + 1`) adds: the step leaves an
+    /// unmasked frame f of clip c for frame f + 1 of the same clip under
+    /// the same anchor, with f in the window's frames. At an episode's
+    /// first step the frame left is the start's own, when the start is
+    /// that clip frame itself (a reference start, not drawn from its
+    /// neighbourhood, not a rollout's state, without masked steps), as
+    /// the push search replays from the window's first frame
+    /// ([`crate::sim::push::push_offsets`]).
+    fn push_window(&self, ep: &Episode) -> Option<&PushFeedForward> {
+        if self.cfg.push_feed_forward.is_empty() {
+            return None;
+        }
+        let along = |t: usize| {
+            ep.step_at(t)
+                .filter(|(st, _)| !st.masked)
+                .and_then(|(st, a)| Some((st.ref_clip?, st.ref_frame?, a)))
+        };
+        let (c1, f1, a1) = along(ep.at + 1)?;
+        let (c, f) = if ep.at == 0 {
+            let t = &ep.traj;
+            let plain = t.start_kind == StartKind::Rsi
+                && !t.noised
+                && !t.simulated
+                && t.n_masked == 0
+                && a1.is_none();
+            if !plain {
+                return None;
+            }
+            t.connect
+        } else {
+            let (c0, f0, a0) = along(ep.at)?;
+            if a0 != a1 {
+                return None;
+            }
+            (c0, f0)
+        };
+        if c != c1 || f1 != f + 1 {
+            return None;
+        }
+        self.cfg
+            .push_feed_forward
+            .iter()
+            .find(|p| p.clip == c as usize && p.frames.contains(&(f as usize)))
     }
 
     /// Fill the reference block of the observation row `out` (after the

@@ -147,6 +147,15 @@ impl Setup {
         }
         let mut objects = objects::load_all(&first.objects, &root)?;
         objects::set_density(&mut objects, cfg.object_density.map(|d| d as f32));
+        if cfg.ball_inertia != objects::BallInertia::Solid
+            && !objects.iter().any(|o| o.sphere_mass_properties().is_some())
+        {
+            bail!(
+                "train.ball_inertia = \"shell\": the training clips' objects ({:?}) have no \
+                 ball; set it to \"solid\"",
+                first.objects
+            );
+        }
         objects::set_ball_inertia(&mut objects, cfg.ball_inertia);
         let sim = SimOptions {
             pd_stiffness_scale: cfg.pd_stiffness_scale as f32,
@@ -303,7 +312,9 @@ pub fn environment<'a>(
 /// search serves `train.warm_start_push` and `train.push_feed_forward`.
 ///
 /// # Errors
-/// As [`crate::sim::push::push_offsets`], under `key`.
+/// As [`crate::sim::push::push_offsets`], under `key`; a group that is on
+/// while the training clips have no push window (no ball, or no hand
+/// that pushes it down over a few frames), naming `train.key`.
 pub fn searched_pushes(
     s: &Setup,
     group: WarmStartPush,
@@ -313,7 +324,7 @@ pub fn searched_pushes(
     if group == WarmStartPush::Off {
         return Ok(Vec::new());
     }
-    crate::sim::push::push_offsets(
+    let pushes = crate::sim::push::push_offsets(
         &s.lib,
         &s.clips,
         crate::sim::push::Scene {
@@ -325,7 +336,21 @@ pub fn searched_pushes(
         group == WarmStartPush::Upper,
         seed,
     )
-    .with_context(|| format!("train.{key}"))
+    .with_context(|| format!("train.{key}"))?;
+    if pushes.is_empty() {
+        bail!(
+            "train.{key} = \"{}\": the training clips ({}) have no push window (a ball \
+             descending with a hand on it over 3 frames or more from a start frame), so there \
+             is nothing to add; set it to \"off\"",
+            group_name(group),
+            s.clips
+                .iter()
+                .map(|&c| s.lib.clips[c].name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    Ok(pushes)
 }
 
 /// Build an environment of `n` worlds over `setup`'s library that starts

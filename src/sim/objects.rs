@@ -87,6 +87,7 @@ impl std::fmt::Debug for ObjectSpec {
             .field("name", &self.name)
             .field("density", &self.density)
             .field("source", &self.source)
+            .field("inertia", &self.inertia)
             .finish()
     }
 }

@@ -527,8 +527,9 @@ fn window_rng(seed: u64, clip: usize, w: PushWindow) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed ^ ((clip as u64) << 32) ^ ((w.start as u64) << 16))
 }
 
-/// A push window's best offset, for the warm start
-/// (`train.warm_start_push`, [`push_offsets`]).
+/// A push window's best offset, for the warm start or the feed-forward
+/// targets (`train.warm_start_push`, `train.push_feed_forward`,
+/// [`push_offsets`]).
 #[derive(Clone, Debug)]
 pub struct PushOffset {
     /// Clip index in the library.
