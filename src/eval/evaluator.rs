@@ -333,7 +333,7 @@ pub fn load_policy(
             );
         }
     }
-    let on = meta.train.push_feed_forward != crate::rl::config::WarmStartPush::Off;
+    let on = meta.train.push_feed_forward != crate::rl::config::PushJoints::Off;
     if on && meta.push_feed_forward.is_empty() {
         bail!(
             "{}: train.push_feed_forward is on but the description holds no push_feed_forward \

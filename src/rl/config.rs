@@ -158,7 +158,7 @@ pub struct TrainConfig {
     /// PD targets near the clip's can. Not in the paper or the reference
     /// code. Not written when off.
     #[serde(skip_serializing_if = "is_push_off")]
-    pub warm_start_push: WarmStartPush,
+    pub warm_start_push: PushJoints,
     /// First iterations that update only the critic (0 = none).
     pub critic_warmup_iters: u64,
     /// The reference code's hidden smoothness factor in the SM reward.
@@ -345,7 +345,7 @@ pub struct TrainConfig {
     /// `feed_forward_lead` the offset is added to the extrapolated target.
     /// Not in the paper or the reference code. Not written when off.
     #[serde(skip_serializing_if = "is_push_off")]
-    pub push_feed_forward: WarmStartPush,
+    pub push_feed_forward: PushJoints,
     /// Rotational inertia of the ball in training and in the policy's
     /// evaluation: `"solid"` (2/5 m r^2, the reference's URDF sphere) or
     /// `"shell"` (2/3 m r^2 with the same mass, a basketball's), which
@@ -389,12 +389,13 @@ fn is_zero(x: &f32) -> bool {
     *x == 0.0
 }
 
-/// Which push offsets the warm start fits (`train.warm_start_push`), or
-/// the feed-forward adds (`train.push_feed_forward`).
+/// The joints whose searched push offsets the warm start fits
+/// (`train.warm_start_push`) or the feed-forward adds
+/// (`train.push_feed_forward`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum WarmStartPush {
-    /// None: the warm start fits the next reference frame everywhere.
+pub enum PushJoints {
+    /// No offsets: the next reference frame everywhere.
     #[default]
     Off,
     /// Offsets on the shoulders, elbows and wrists
@@ -408,8 +409,19 @@ fn is_reference_seam(m: &SeamMatch) -> bool {
     *m == SeamMatch::Reference
 }
 
-fn is_push_off(p: &WarmStartPush) -> bool {
-    *p == WarmStartPush::Off
+impl PushJoints {
+    /// The recipe value (`"off"`, `"arms"`, `"upper"`).
+    pub fn name(self) -> &'static str {
+        match self {
+            PushJoints::Off => "off",
+            PushJoints::Arms => "arms",
+            PushJoints::Upper => "upper",
+        }
+    }
+}
+
+fn is_push_off(p: &PushJoints) -> bool {
+    *p == PushJoints::Off
 }
 
 fn is_all_joints(j: &JointSet) -> bool {
@@ -501,7 +513,7 @@ impl Default for TrainConfig {
             warm_start_epochs: 50,
             warm_start_copies: 4,
             warm_start_lr: 1e-3,
-            warm_start_push: WarmStartPush::Off,
+            warm_start_push: PushJoints::Off,
             critic_warmup_iters: 5,
             smoothness: false,
             ats_update: Update::Mean,
@@ -530,7 +542,7 @@ impl Default for TrainConfig {
             object_density: None,
             energy_bonus: 0.0,
             energy_bonus_scale: crate::reward::ENERGY_BONUS_SCALE,
-            push_feed_forward: WarmStartPush::Off,
+            push_feed_forward: PushJoints::Off,
             ball_inertia: crate::sim::objects::BallInertia::Solid,
         }
     }
@@ -626,16 +638,14 @@ impl crate::config::Validate for TrainConfig {
         if let Some(d) = self.object_density {
             c.range("object_density", d, 1.0, 1e5)?;
         }
-        if self.push_feed_forward != WarmStartPush::Off
-            && self.warm_start_push != WarmStartPush::Off
-        {
+        if self.push_feed_forward != PushJoints::Off && self.warm_start_push != PushJoints::Off {
             anyhow::bail!(
                 "{stage}.push_feed_forward already adds the searched offsets to the feed-forward \
                  targets, which the warm start then fits as a zero residual; \
                  {stage}.warm_start_push would add them a second time: set one of the two to \"off\""
             );
         }
-        if self.push_feed_forward != WarmStartPush::Off && !self.residual_action {
+        if self.push_feed_forward != PushJoints::Off && !self.residual_action {
             anyhow::bail!(
                 "{stage}.push_feed_forward adds its offsets to the feed-forward targets of \
                  {stage}.residual_action: set {stage}.residual_action = true, or push_feed_forward = \"off\""

@@ -16,7 +16,7 @@
 //! the same number of ranks only.
 
 use super::comm::{fingerprint, Comm};
-use super::config::{PolicyMeta, PushOffsetMeta, TrainConfig, WarmStartPush};
+use super::config::{PolicyMeta, PushJoints, PushOffsetMeta, TrainConfig};
 use super::humanoid::{
     EnvConfig, EnvParts, EnvStats, EpisodeRecord, HeRuntime, HumanoidEnv, JointSet,
     PushFeedForward, SimStart,
@@ -308,7 +308,7 @@ pub fn environment<'a>(
 
 /// The best offsets of every push window of `setup`'s training clips on
 /// the joint `group` ([`crate::sim::push::push_offsets`], its default
-/// search settings, `seed`); empty for [`WarmStartPush::Off`]. The same
+/// search settings, `seed`); empty for [`PushJoints::Off`]. The same
 /// search serves `train.warm_start_push` and `train.push_feed_forward`.
 ///
 /// # Errors
@@ -317,11 +317,11 @@ pub fn environment<'a>(
 /// that pushes it down over a few frames), naming `train.key`.
 pub fn searched_pushes(
     s: &Setup,
-    group: WarmStartPush,
+    group: PushJoints,
     seed: u64,
     key: &str,
 ) -> Result<Vec<PushOffset>> {
-    if group == WarmStartPush::Off {
+    if group == PushJoints::Off {
         return Ok(Vec::new());
     }
     let pushes = crate::sim::push::push_offsets(
@@ -333,7 +333,7 @@ pub fn searched_pushes(
             opts: &s.sim,
         },
         &crate::sim::push::PushConfig::default(),
-        group == WarmStartPush::Upper,
+        group == PushJoints::Upper,
         seed,
     )
     .with_context(|| format!("train.{key}"))?;
@@ -342,7 +342,7 @@ pub fn searched_pushes(
             "train.{key} = \"{}\": the training clips ({}) have no push window (a ball \
              descending with a hand on it over 3 frames or more from a start frame), so there \
              is nothing to add; set it to \"off\"",
-            group_name(group),
+            group.name(),
             s.clips
                 .iter()
                 .map(|&c| s.lib.clips[c].name.as_str())
@@ -1329,10 +1329,10 @@ impl<'a> Trainer<'a> {
                 }
             ));
         }
-        if cfg.warm_start_push != WarmStartPush::Off {
+        if cfg.warm_start_push != PushJoints::Off {
             on.push(format!(
                 "warm_start_push={} (push windows' searched offsets in the warm start{})",
-                group_name(cfg.warm_start_push),
+                cfg.warm_start_push.name(),
                 if cfg.warm_start_epochs == 0 {
                     "; no effect: warm start off"
                 } else {
@@ -1343,10 +1343,10 @@ impl<'a> Trainer<'a> {
         if cfg.ball_inertia == crate::sim::objects::BallInertia::Shell {
             on.push("ball_inertia=shell (2/3 m r^2)".to_string());
         }
-        if cfg.push_feed_forward != WarmStartPush::Off {
+        if cfg.push_feed_forward != PushJoints::Off {
             on.push(format!(
                 "push_feed_forward={} (push windows' searched offsets in the feed-forward targets)",
-                group_name(cfg.push_feed_forward)
+                cfg.push_feed_forward.name()
             ));
         }
         if cfg.overlap_rollout {
@@ -1693,15 +1693,6 @@ impl<'a> Trainer<'a> {
                 })
                 .collect(),
         }
-    }
-}
-
-/// The recipe value of a push offsets' joint group.
-fn group_name(g: WarmStartPush) -> &'static str {
-    match g {
-        WarmStartPush::Off => "off",
-        WarmStartPush::Arms => "arms",
-        WarmStartPush::Upper => "upper",
     }
 }
 
