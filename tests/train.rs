@@ -204,24 +204,15 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
         ],
     ));
     let meta_path = with.join("policy.meta.json");
-    let meta: serde_json::Value =
+    let meta: skillaug::rl::config::PolicyMeta =
         serde_json::from_str(&std::fs::read_to_string(&meta_path).unwrap()).unwrap();
-    let pushes = meta["push_feed_forward"].as_array().expect("the offsets");
+    let pushes = &meta.push_feed_forward;
     assert_eq!(pushes.len(), 1, "{pushes:?}");
     let p = &pushes[0];
-    assert_eq!(p["clip"], "013_018pickle_run_4");
-    assert_eq!(
-        (p["start"].as_u64(), p["release"].as_u64()),
-        (Some(2), Some(13))
-    );
-    let offset: Vec<f64> = p["offset"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap())
-        .collect();
-    assert_eq!(offset.len(), 156);
-    assert!(offset.iter().any(|x| x.abs() > 0.1), "{offset:?}");
+    assert_eq!(p.clip, "013_018pickle_run_4");
+    assert_eq!((p.start, p.release), (2, 13));
+    assert_eq!(p.offset.len(), 156);
+    assert!(p.offset.iter().any(|x| x.abs() > 0.1), "{:?}", p.offset);
 
     // the same policy without the offsets
     let without = dir.path().join("without");
@@ -230,14 +221,8 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
         std::fs::copy(with.join(f), without.join(f)).unwrap();
     }
     let mut stripped = meta.clone();
-    stripped
-        .as_object_mut()
-        .unwrap()
-        .remove("push_feed_forward");
-    stripped["train"]
-        .as_object_mut()
-        .unwrap()
-        .remove("push_feed_forward");
+    stripped.push_feed_forward.clear();
+    stripped.train.push_feed_forward = skillaug::rl::config::PushJoints::Off;
     std::fs::write(
         without.join("policy.meta.json"),
         serde_json::to_string(&stripped).unwrap(),
@@ -311,7 +296,7 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
 
     // offsets that do not fit the library are refused, naming the clip
     let mut bad = meta.clone();
-    bad["push_feed_forward"][0]["clip"] = "013_018pickle_run_9".into();
+    bad.push_feed_forward[0].clip = "013_018pickle_run_9".into();
     std::fs::write(&meta_path, serde_json::to_string(&bad).unwrap()).unwrap();
     let err = fails(&[
         "eval",
