@@ -150,30 +150,30 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
 fn a_run_with_the_push_warm_start_killed_and_resumed_matches_too() {
     // the push search runs before the warm start, with the run's seed, on
     // DF's push windows; its offsets live on in the fitted weights
-    killed_and_resumed_on_df_with("train.warm_start_push=arms");
+    killed_and_resumed_on_df_with(&["train.warm_start_push=arms"]);
 }
 
 #[test]
 fn a_run_with_the_push_feed_forward_killed_and_resumed_matches_too() {
-    // the push search runs again on a resume, with the run's seed, and its
-    // offsets enter the feed-forward targets of every step inside a window
-    killed_and_resumed_on_df_with("train.push_feed_forward=arms");
+    // the push search runs again on a resume, with the run's seed and
+    // objective, and its offsets enter the feed-forward targets of every
+    // step inside a window
+    killed_and_resumed_on_df_with(&["train.push_feed_forward=arms", "train.push_objective=catch"]);
 }
 
 /// [`killed_and_resumed_matches_uninterrupted`] on DF with residual
-/// actions and the setting `key_value`.
-fn killed_and_resumed_on_df_with(key_value: &str) {
-    killed_and_resumed_matches_uninterrupted(
-        false,
-        &[
-            "--set",
-            "train.skills=[\"run\"]",
-            "--set",
-            "train.residual_action=true",
-            "--set",
-            key_value,
-        ],
-    );
+/// actions and the settings `key_values`.
+fn killed_and_resumed_on_df_with(key_values: &[&str]) {
+    let mut args = vec![
+        "--set",
+        "train.skills=[\"run\"]",
+        "--set",
+        "train.residual_action=true",
+    ];
+    for kv in key_values {
+        args.extend(["--set", kv]);
+    }
+    killed_and_resumed_matches_uninterrupted(false, &args);
 }
 
 #[test]
@@ -327,6 +327,45 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
             "train.warm_start_push=arms",
         ],
         "train.warm_start_push",
+    );
+    // the search's objective is a setting: the ball where the clip's hand
+    // next meets it finds another offset for the same window and seed;
+    // without a push setting to serve it is refused
+    let catch = dir.path().join("catch");
+    ok(&train_args(
+        from,
+        catch.to_str().unwrap(),
+        &[
+            "--set",
+            "train.skills=[\"run\"]",
+            "--set",
+            "train.residual_action=true",
+            "--set",
+            "train.seam_leave_search_s=0.67",
+            "--set",
+            "train.push_feed_forward=arms",
+            "--set",
+            "train.push_objective=catch",
+            "--set",
+            "train.samples=32",
+            "--seed",
+            "3",
+        ],
+    ));
+    let by_catch: skillaug::rl::config::PolicyMeta =
+        serde_json::from_str(&std::fs::read_to_string(catch.join("policy.meta.json")).unwrap())
+            .unwrap();
+    let q = &by_catch.push_feed_forward[0];
+    assert_eq!((q.start, q.release), (p.start, p.release));
+    assert_ne!(q.offset, p.offset);
+    assert_eq!(
+        by_catch.train.push_objective,
+        skillaug::sim::push::PushObjective::Catch
+    );
+    refused(
+        &run,
+        &["train.push_objective=catch"],
+        "train.push_objective",
     );
 }
 

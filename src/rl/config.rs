@@ -346,6 +346,16 @@ pub struct TrainConfig {
     /// Not in the paper or the reference code. Not written when off.
     #[serde(skip_serializing_if = "is_push_off")]
     pub push_feed_forward: PushJoints,
+    /// What the push search of `push_feed_forward` and `warm_start_push`
+    /// optimises ([`crate::sim::push::PushObjective`]): `"ball"` (the
+    /// ball's velocity and position at the release against the clip's),
+    /// `"catch"` (the ball's velocity and its position relative to the root
+    /// where the clip's hand next meets it, after its bounce) or `"sm"` (the
+    /// SM reward over the window and 40 frames after it). Refused when
+    /// neither of the two is on. Not in the paper or the reference code.
+    /// Not written when `"ball"`.
+    #[serde(skip_serializing_if = "is_ball_objective")]
+    pub push_objective: crate::sim::push::PushObjective,
     /// Rotational inertia of the ball in training and in the policy's
     /// evaluation: `"solid"` (2/5 m r^2, the reference's URDF sphere) or
     /// `"shell"` (2/3 m r^2 with the same mass, a basketball's), which
@@ -354,6 +364,10 @@ pub struct TrainConfig {
     /// reference code. Not written when solid.
     #[serde(skip_serializing_if = "is_solid")]
     pub ball_inertia: crate::sim::objects::BallInertia,
+}
+
+fn is_ball_objective(o: &crate::sim::push::PushObjective) -> bool {
+    *o == crate::sim::push::PushObjective::Ball
 }
 
 fn is_solid(b: &crate::sim::objects::BallInertia) -> bool {
@@ -543,6 +557,7 @@ impl Default for TrainConfig {
             energy_bonus: 0.0,
             energy_bonus_scale: crate::reward::ENERGY_BONUS_SCALE,
             push_feed_forward: PushJoints::Off,
+            push_objective: crate::sim::push::PushObjective::Ball,
             ball_inertia: crate::sim::objects::BallInertia::Solid,
         }
     }
@@ -643,6 +658,17 @@ impl crate::config::Validate for TrainConfig {
                 "{stage}.push_feed_forward already adds the searched offsets to the feed-forward \
                  targets, which the warm start then fits as a zero residual; \
                  {stage}.warm_start_push would add them a second time: set one of the two to \"off\""
+            );
+        }
+        if self.push_objective != crate::sim::push::PushObjective::Ball
+            && self.push_feed_forward == PushJoints::Off
+            && self.warm_start_push == PushJoints::Off
+        {
+            anyhow::bail!(
+                "{stage}.push_objective = \"{}\" chooses what the push search of \
+                 {stage}.push_feed_forward or {stage}.warm_start_push optimises, and both are \
+                 \"off\": turn one on, or leave push_objective at \"ball\"",
+                self.push_objective.name()
             );
         }
         if self.push_feed_forward != PushJoints::Off && !self.residual_action {

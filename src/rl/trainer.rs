@@ -29,7 +29,7 @@ use crate::augment::stf::{StfParams, StfSampler};
 use crate::motion::MotionLib;
 use crate::reward::{DatasetKind, RewardOptions, Weights};
 use crate::sim::mjcf::Model;
-use crate::sim::push::PushOffset;
+use crate::sim::push::{PushObjective, PushOffset};
 use crate::sim::{objects, SimOptions};
 use crate::table::io::StagedDir;
 use crate::table::train::{MetricRow, Metrics};
@@ -308,7 +308,8 @@ pub fn environment<'a>(
 
 /// The best offsets of every push window of `setup`'s training clips on
 /// the joint `group` ([`crate::sim::push::push_offsets`], its default
-/// search settings, `seed`); empty for [`PushJoints::Off`]. The same
+/// search settings with `objective` (`train.push_objective`), `seed`);
+/// empty for [`PushJoints::Off`]. The same
 /// search serves `train.warm_start_push` and `train.push_feed_forward`.
 ///
 /// # Errors
@@ -318,6 +319,7 @@ pub fn environment<'a>(
 pub fn searched_pushes(
     s: &Setup,
     group: PushJoints,
+    objective: PushObjective,
     seed: u64,
     key: &str,
 ) -> Result<Vec<PushOffset>> {
@@ -332,7 +334,10 @@ pub fn searched_pushes(
             objects: &s.objects,
             opts: &s.sim,
         },
-        &crate::sim::push::PushConfig::default(),
+        &crate::sim::push::PushConfig {
+            objective,
+            ..Default::default()
+        },
         group == PushJoints::Upper,
         seed,
     )
@@ -987,7 +992,13 @@ impl<'a> Trainer<'a> {
         if comm.rank() > 0 {
             rng.set_stream(comm.rank() as u64);
         }
-        let push_ff = searched_pushes(s, cfg.push_feed_forward, seed, "push_feed_forward")?;
+        let push_ff = searched_pushes(
+            s,
+            cfg.push_feed_forward,
+            cfg.push_objective,
+            seed,
+            "push_feed_forward",
+        )?;
         let env = environment(s, cfg, he, n, &push_ff, &mut rng)?;
         let mut ppo = cfg.ppo_config();
         if cfg.noise_correlation_joints != JointSet::All {
@@ -1003,7 +1014,13 @@ impl<'a> Trainer<'a> {
         let mut warm_start = None;
         if cfg.warm_start_epochs > 0 {
             let t = Instant::now();
-            let pushes = searched_pushes(s, cfg.warm_start_push, seed, "warm_start_push")?;
+            let pushes = searched_pushes(
+                s,
+                cfg.warm_start_push,
+                cfg.push_objective,
+                seed,
+                "warm_start_push",
+            )?;
             let (obs, targets) =
                 env.warm_start_data(&s.clips, cfg.warm_start_copies, &pushes, &mut rng)?;
             let mse = agent.fit_mean(
@@ -1082,7 +1099,13 @@ impl<'a> Trainer<'a> {
             );
         }
         let mut throwaway = ChaCha8Rng::seed_from_u64(seed);
-        let push_ff = searched_pushes(s, cfg.push_feed_forward, seed, "push_feed_forward")?;
+        let push_ff = searched_pushes(
+            s,
+            cfg.push_feed_forward,
+            cfg.push_objective,
+            seed,
+            "push_feed_forward",
+        )?;
         let mut env = environment(s, cfg, he, n, &push_ff, &mut throwaway)?;
         env.restore(recs)?;
         env.set_sim_pool(part.sim_pool.clone(), part.sim_next)

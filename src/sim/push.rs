@@ -22,6 +22,15 @@
 //! targets; the best offset ever drawn (zero included) is reported, so a
 //! search never reports worse than the replay.
 //!
+//! With `objective = "catch"` the cost is measured later, at the window's
+//! *catch frame* ([`catch_frame`]: the first frame after the ball's next
+//! bounce where a hand body is again within `hand_radius` of the clip's
+//! ball), the humanoid tracking the clip's own next frames after the
+//! release: `|v - v_ref|^2 + 25 |(p - r) - (p_ref - r_ref)|^2` with `r`
+//! the root's position, so the cost asks where the ball comes back to the
+//! hand after the simulated floor has taken its share of the ball's
+//! horizontal speed, not how it leaves the hand.
+//!
 //! With `objective = "sm"` the search instead maximises the SM reward
 //! (paper Eqs. 12-17, training's weights and reward options) summed over
 //! the window and the `sm_frames` frames after it, the humanoid tracking
@@ -37,7 +46,7 @@ use super::mjcf::Model;
 use super::world::{hand_bodies, joint_rates, SimOptions, World};
 use super::ObjectSpec;
 use crate::motion::clip::ClipFrames;
-use crate::motion::{MotionLib, Skeleton};
+use crate::motion::{MotionLib, Skeleton, State};
 use crate::reward::{self, DatasetKind, RewardOptions, WeightOverrides, Weights};
 use anyhow::{Context, Result};
 use rand::SeedableRng;
@@ -72,8 +81,9 @@ pub struct PushConfig {
     /// the defaults are training's).
     pub physics: ReplayPhysics,
     /// What the search optimises: the ball at the release (`"ball"`, the
-    /// module doc's cost) or the SM reward (`"sm"`: its sum over the window
-    /// and the `sm_frames` frames after it, [`SmScore`]).
+    /// module doc's cost), the ball at the catch frame relative to the root
+    /// (`"catch"`, module doc) or the SM reward (`"sm"`: its sum over the
+    /// window and the `sm_frames` frames after it, [`SmScore`]).
     pub objective: PushObjective,
     /// Frames after the release over which the SM reward is also summed
     /// (the humanoid then tracks the clip's own next frames), so that the
@@ -95,6 +105,20 @@ pub enum PushObjective {
     /// The SM reward (paper Eqs. 12-17, training's weights and options)
     /// summed over the window and [`PushConfig::sm_frames`] frames after.
     Sm,
+    /// The ball's velocity and its position relative to the root at the
+    /// window's [`catch_frame`] against the clip's.
+    Catch,
+}
+
+impl PushObjective {
+    /// The recipe's name of the objective.
+    pub fn name(self) -> &'static str {
+        match self {
+            PushObjective::Ball => "ball",
+            PushObjective::Sm => "sm",
+            PushObjective::Catch => "catch",
+        }
+    }
 }
 
 impl Default for PushConfig {
@@ -141,6 +165,9 @@ pub struct PushWindow {
     pub start: usize,
     /// The frame after the window's last, where the ball is compared.
     pub release: usize,
+    /// Where the clip's hand meets the ball again after its bounce
+    /// ([`catch_frame`]; `None` when the clip has no such frame).
+    pub catch: Option<usize>,
 }
 
 /// The push windows of a clip: maximal runs of at least `min_frames` valid
@@ -156,15 +183,7 @@ pub fn push_windows(
     let allowed = crate::augment::ats::start_frames(f);
     let pushing = |i: usize| -> bool {
         let Some(s) = f.state(i) else { return false };
-        if s.obj_pos.len() < 3 || s.obj_linvel[2] >= 0.0 {
-            return false;
-        }
-        hand.iter().enumerate().filter(|(_, h)| **h).any(|(b, _)| {
-            let d2: f64 = (0..3)
-                .map(|k| (s.body_pos[b * 3 + k] as f64 - s.obj_pos[k] as f64).powi(2))
-                .sum();
-            d2.sqrt() < hand_radius
-        })
+        s.obj_pos.len() >= 3 && s.obj_linvel[2] < 0.0 && hand_near(&s, hand, hand_radius)
     };
     let mut out = Vec::new();
     let mut i = 0;
@@ -178,14 +197,55 @@ pub fn push_windows(
             end += 1;
         }
         if end - i >= min_frames && end < f.frames && f.valid[end] {
-            out.push(PushWindow {
+            let mut w = PushWindow {
                 start: i,
                 release: end,
-            });
+                catch: None,
+            };
+            w.catch = catch_frame(f, hand, hand_radius, w);
+            out.push(w);
         }
         i = end;
     }
     out
+}
+
+/// Whether a hand body origin of `s` (`hand` marks the hand bodies) is
+/// within `hand_radius` m of object 0's centre (`s` has an object).
+fn hand_near(s: &State, hand: &[bool], hand_radius: f64) -> bool {
+    hand.iter().enumerate().filter(|(_, h)| **h).any(|(b, _)| {
+        let d2: f64 = (0..3)
+            .map(|k| (s.body_pos[b * 3 + k] as f64 - s.obj_pos[k] as f64).powi(2))
+            .sum();
+        d2.sqrt() < hand_radius
+    })
+}
+
+/// The catch frame of window `w` of clip `f`: after the release, the
+/// first frame whose object 0 rises (`v_z > 0`, the bounce), then the
+/// first frame after that with a hand body origin (`hand` marks the hand
+/// bodies) within `hand_radius` m of the ball's centre. `None` when a
+/// frame is missing or the clip ends before (the search then has no catch
+/// to score: [`PushObjective::Catch`] falls back to the release's cost).
+pub fn catch_frame(
+    f: &ClipFrames,
+    hand: &[bool],
+    hand_radius: f64,
+    w: PushWindow,
+) -> Option<usize> {
+    let mut bounced = false;
+    for i in w.release + 1..f.frames {
+        let s = f.state(i)?;
+        if s.obj_pos.len() < 3 {
+            return None;
+        }
+        if !bounced {
+            bounced = s.obj_linvel[2] > 0.0;
+        } else if hand_near(&s, hand, hand_radius) {
+            return Some(i);
+        }
+    }
+    None
 }
 
 /// Joints (index j drives body j + 1) of the arms (`upper = false`:
@@ -254,15 +314,23 @@ impl Scorer {
 /// The ball one frame after a window, replayed under PD from the clip's
 /// state at `w.start` with targets = next frame + `offset` on `joints`;
 /// with a scorer, the replay goes on with the clip's own targets for its
-/// frames after the release and the SM reward of every step is summed.
+/// frames after the release and the SM reward of every step is summed;
+/// with `catch`, it goes on to the window's catch frame (the clip's own
+/// targets after the release) and the ball is also measured there.
 #[derive(Clone)]
 struct Outcome {
     /// The ball's cost at the release (module doc).
     cost: f64,
     vel: [f64; 3],
+    /// The ball's cost at the catch frame (module doc), when replayed to it.
+    catch_cost: Option<f64>,
+    /// How far the ball is at the catch frame from where the clip's is,
+    /// both relative to the root, m.
+    catch_err: Option<f64>,
     sm: Option<SmScore>,
 }
 
+#[allow(clippy::too_many_arguments)]
 fn replay(
     world: &mut World,
     f: &ClipFrames,
@@ -271,18 +339,21 @@ fn replay(
     offset: &[f32],
     rates: bool,
     scorer: Option<&Scorer>,
+    catch: bool,
 ) -> Result<Outcome> {
     let start = f.state(w.start).context("start frame not valid")?;
     world.set_state(&start)?;
     let mut score = SmScore::default();
-    let mut at_release = None;
-    let last = match scorer {
-        Some(sc) => w.release + sc.frames,
-        None => w.release,
-    };
+    let (mut at_release, mut at_catch) = (None, None);
+    let scored_until = scorer.map_or(w.release, |sc| w.release + sc.frames);
+    let catch = w.catch.filter(|_| catch);
+    let last = scored_until.max(catch.unwrap_or(0));
     for i in w.start..last.min(f.frames - 1) {
         if i == w.release {
             at_release = Some(world.get_state());
+        }
+        if Some(i) == catch {
+            at_catch = Some(world.get_state());
         }
         let Some(next) = f.state(i + 1) else {
             // a missing frame ends the scored part; the window's frames
@@ -304,7 +375,7 @@ fn replay(
             Some(r) => world.apply_action_with_rates(&crate::rl::humanoid::feed_forward(&t), &r),
             None => world.set_joint_targets(&t),
         }
-        match scorer {
+        match scorer.filter(|_| i < scored_until) {
             Some(sc) => {
                 let c = world.step_with_contacts().reward_contacts(
                     sc.sk.contact_penalty_bodies(),
@@ -332,6 +403,20 @@ fn replay(
     let dp: f64 = (0..3)
         .map(|k| (g.obj_pos[k] as f64 - r.obj_pos[k] as f64).powi(2))
         .sum();
+    // a catch at the loop's end is where the world stands now
+    let at_catch = catch.and(at_catch.or_else(|| Some(world.get_state())));
+    let (catch_cost, catch_err) = match (catch, at_catch) {
+        (Some(c), Some(g)) => {
+            let r = f.state(c).context("catch frame not valid")?;
+            let rel = |s: &State, k: usize| s.obj_pos[k] as f64 - s.root_pos[k] as f64;
+            let dv: f64 = (0..3)
+                .map(|k| (g.obj_linvel[k] as f64 - r.obj_linvel[k] as f64).powi(2))
+                .sum();
+            let dp: f64 = (0..3).map(|k| (rel(&g, k) - rel(&r, k)).powi(2)).sum();
+            (Some(dv + 25.0 * dp), Some(dp.sqrt()))
+        }
+        _ => (None, None),
+    };
     let sm = scorer.map(|_| {
         let n = score.steps.max(1) as f64;
         SmScore {
@@ -345,15 +430,20 @@ fn replay(
     Ok(Outcome {
         cost: dv.iter().map(|x| x * x).sum::<f64>() + 25.0 * dp,
         vel: std::array::from_fn(|k| g.obj_linvel[k] as f64),
+        catch_cost,
+        catch_err,
         sm,
     })
 }
 
 impl Outcome {
-    /// What a search minimises: the ball's cost, or the negated SM sum.
+    /// What a search minimises: the ball's cost at the release or at the
+    /// catch (the release's where the window has no catch frame), or the
+    /// negated SM sum.
     fn key(&self, objective: PushObjective) -> f64 {
         match (objective, self.sm) {
             (PushObjective::Sm, Some(s)) => -s.sum,
+            (PushObjective::Catch, _) => self.catch_cost.unwrap_or(self.cost),
             _ => self.cost,
         }
     }
@@ -364,8 +454,14 @@ impl Outcome {
 pub struct PushSearch {
     /// Ball velocity at the release, m/s.
     pub vel: [f64; 3],
-    /// Cost (module doc), m^2/s^2.
+    /// Cost at the release (module doc), m^2/s^2.
     pub cost: f64,
+    /// Cost at the catch frame (module doc), m^2/s^2, where the search
+    /// replayed to it (objective `"catch"`, or `skillaug check-ball`).
+    pub catch_cost: Option<f64>,
+    /// Distance of the ball at the catch frame from the clip's, both
+    /// relative to the root, m (with `catch_cost`).
+    pub catch_err: Option<f64>,
     /// The SM reward of the replay over the window and
     /// [`PushConfig::sm_frames`] frames after it (from `skillaug
     /// check-ball`'s search; `None` where not scored, as in the warm
@@ -408,6 +504,8 @@ fn summary(o: &Outcome, offset: &[f32]) -> PushSearch {
     PushSearch {
         vel: o.vel,
         cost: o.cost,
+        catch_cost: o.catch_cost,
+        catch_err: o.catch_err,
         sm: o.sm,
         max_offset: offset.iter().fold(0f64, |m, x| m.max(x.abs() as f64)),
         rms_offset: (offset.iter().map(|x| (*x as f64).powi(2)).sum::<f64>() / n).sqrt(),
@@ -436,6 +534,7 @@ fn search(
     let objective = cfg.objective;
     // the ball objective's draws are short replays; the SM one scores each
     let during = scorer.filter(|_| objective == PushObjective::Sm);
+    let catching = objective == PushObjective::Catch;
     let d = joints.len() * 3;
     let mut best = (replayed.clone(), vec![0f32; d]);
     let mut mu = vec![0f64; d];
@@ -450,7 +549,12 @@ fn search(
             .collect();
         let mut scored = draws
             .into_par_iter()
-            .map(|x| Ok((replay(&mut make()?, f, w, joints, &x, false, during)?, x)))
+            .map(|x| {
+                Ok((
+                    replay(&mut make()?, f, w, joints, &x, false, during, catching)?,
+                    x,
+                ))
+            })
             .collect::<Result<Vec<_>>>()?;
         scored.sort_by(|a, b| a.0.key(objective).total_cmp(&b.0.key(objective)));
         let elites = &scored[..cfg.elites];
@@ -469,9 +573,12 @@ fn search(
             best = scored.swap_remove(0);
         }
     }
-    if let (Some(sc), None) = (scorer, best.0.sm) {
-        // the ball objective's best, scored once
-        best.0.sm = replay(&mut make()?, f, w, joints, &best.1, false, Some(sc))?.sm;
+    if (scorer.is_some() && best.0.sm.is_none()) || best.0.catch_cost.is_none() {
+        // the best offset, scored once by what its objective did not score
+        let again = replay(&mut make()?, f, w, joints, &best.1, false, scorer, true)?;
+        best.0.sm = best.0.sm.or(again.sm);
+        best.0.catch_cost = again.catch_cost;
+        best.0.catch_err = again.catch_err;
     }
     Ok(summary(&best.0, &best.1))
 }
@@ -504,9 +611,9 @@ pub fn fit_pushes_of_clip(
             let r = f.state(w.release).context("release frame not valid")?;
             let zero = vec![0f32; arms.len() * 3];
             let sc = Some(&scorer);
-            let replayed = replay(&mut make()?, f, w, &arms, &zero, false, sc)?;
+            let replayed = replay(&mut make()?, f, w, &arms, &zero, false, sc, true)?;
             // its release velocity is all the table shows of it
-            let with_rates = replay(&mut make()?, f, w, &arms, &zero, true, None)?;
+            let with_rates = replay(&mut make()?, f, w, &arms, &zero, true, None, false)?;
             Ok(PushFit {
                 clip,
                 window: w,
@@ -599,7 +706,7 @@ pub fn push_offsets(
                 let zero = vec![0f32; joints.len() * 3];
                 let scorer = (cfg.objective == PushObjective::Sm).then(|| Scorer::of(lib, cfg));
                 let sc = scorer.as_ref();
-                let replayed = replay(&mut make()?, f, w, &joints, &zero, false, sc)?;
+                let replayed = replay(&mut make()?, f, w, &joints, &zero, false, sc, true)?;
                 let found = search(&make, f, w, &joints, cfg, &replayed, sc, &mut rng)?;
                 let mut offset = vec![0f32; n_joints * 3];
                 for (k, &j) in joints.iter().enumerate() {

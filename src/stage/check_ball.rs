@@ -136,6 +136,7 @@ fn print_push_search(
         match cfg.objective {
             crate::sim::push::PushObjective::Ball => "the ball at the release",
             crate::sim::push::PushObjective::Sm => "this SM sum",
+            crate::sim::push::PushObjective::Catch => "the ball at the catch",
         }
     );
     println!(
@@ -156,6 +157,32 @@ fn print_push_search(
             p.window.start,
             p.window.release,
             p.replay.sm.map_or(0, |m| m.steps),
+            cell(&p.replay),
+            cell(&p.arms),
+            cell(&p.upper),
+        );
+    }
+    println!();
+    println!(
+        "push windows: the ball's horizontal speed at the release, m/s, and at the clip's next catch (a hand within hand_radius of its ball after its bounce) its distance from the clip's ball, both relative to the root, m (the clip's own targets after the release)"
+    );
+    println!(
+        "{:<34} {:>9}  {:>5}  {:>5}  {:>13}  {:>13}  {:>13}",
+        "clip", "frames", "catch", "clip", "own targets", "arms", "upper body"
+    );
+    for p in &fits {
+        let Some(catch) = p.window.catch else {
+            continue;
+        };
+        let cell =
+            |s: &PushSearch| format!("{:5.2} ({:>5})", s.vel[0].hypot(s.vel[1]), opt(s.catch_err));
+        println!(
+            "{:<34} {:>4}-{:<4}  {:>5}  {:>5.2}  {:>13}  {:>13}  {:>13}",
+            lib.clips[p.clip].name,
+            p.window.start,
+            p.window.release,
+            catch,
+            p.vel_ref[0].hypot(p.vel_ref[1]),
             cell(&p.replay),
             cell(&p.arms),
             cell(&p.upper),

@@ -170,7 +170,7 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
 /// release with the clip's own targets, with the offset, and the clip's.
 fn print_push(what: &str, p: &crate::sim::push::PushOffset, lib: &crate::motion::MotionLib) {
     println!(
-        "train: {what} {} frames {}..{}: ball v_z at release {:.2} m/s with the clip's own targets, {:.2} with the offset (RMS {:.2} rad, largest {:.2}), clip {:.2}",
+        "train: {what} {} frames {}..{}: ball v_z at release {:.2} m/s with the clip's own targets, {:.2} with the offset (RMS {:.2} rad, largest {:.2}), clip {:.2}; horizontal speed {:.2}, {:.2}, clip {:.2}",
         lib.clips[p.clip].name,
         p.window.start,
         p.window.release,
@@ -178,6 +178,15 @@ fn print_push(what: &str, p: &crate::sim::push::PushOffset, lib: &crate::motion:
         p.found.vel[2],
         p.found.rms_offset,
         p.found.max_offset,
-        p.vel_ref[2]
+        p.vel_ref[2],
+        p.own.vel[0].hypot(p.own.vel[1]),
+        p.found.vel[0].hypot(p.found.vel[1]),
+        p.vel_ref[0].hypot(p.vel_ref[1]),
     );
+    if let (Some(c), Some(a), Some(b)) = (p.window.catch, p.own.catch_err, p.found.catch_err) {
+        println!(
+            "train: {what} {} frame {c} (the clip's next catch): the ball {a:.2} m from the clip's, relative to the root, with the clip's own targets, {b:.2} with the offset",
+            lib.clips[p.clip].name
+        );
+    }
 }
