@@ -85,13 +85,7 @@ pub fn time_iterations(
     dev: &candle_core::Device,
 ) -> Result<IterationTimes> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
-    let pushes = super::trainer::searched_pushes(
-        s,
-        cfg.push_feed_forward,
-        cfg.push_objective,
-        0,
-        "push_feed_forward",
-    )?;
+    let pushes = super::trainer::feed_forward_pushes(s, cfg, 0)?;
     let mut env = environment(s, cfg, None, cfg.envs(), &pushes, &mut rng)?;
     let mut agent = Agent::new(env.obs_dim(), env.act_dim(), &cfg.ppo_config(), 0, dev)?;
     agent.use_autograd(timing == Timing::Autograd);

@@ -306,6 +306,21 @@ pub fn environment<'a>(
     environment_with(s, &s.clips, s.stf.clone(), env_cfg, he, n, rng)
 }
 
+/// The feed-forward push offsets of `train.push_feed_forward` with
+/// `train.push_objective` ([`searched_pushes`]; empty when off).
+///
+/// # Errors
+/// As [`searched_pushes`].
+pub fn feed_forward_pushes(s: &Setup, cfg: &TrainConfig, seed: u64) -> Result<Vec<PushOffset>> {
+    searched_pushes(
+        s,
+        cfg.push_feed_forward,
+        cfg.push_objective,
+        seed,
+        "push_feed_forward",
+    )
+}
+
 /// The best offsets of every push window of `setup`'s training clips on
 /// the joint `group` ([`crate::sim::push::push_offsets`], its default
 /// search settings with `objective` (`train.push_objective`), `seed`);
@@ -992,13 +1007,7 @@ impl<'a> Trainer<'a> {
         if comm.rank() > 0 {
             rng.set_stream(comm.rank() as u64);
         }
-        let push_ff = searched_pushes(
-            s,
-            cfg.push_feed_forward,
-            cfg.push_objective,
-            seed,
-            "push_feed_forward",
-        )?;
+        let push_ff = feed_forward_pushes(s, cfg, seed)?;
         let env = environment(s, cfg, he, n, &push_ff, &mut rng)?;
         let mut ppo = cfg.ppo_config();
         if cfg.noise_correlation_joints != JointSet::All {
@@ -1099,13 +1108,7 @@ impl<'a> Trainer<'a> {
             );
         }
         let mut throwaway = ChaCha8Rng::seed_from_u64(seed);
-        let push_ff = searched_pushes(
-            s,
-            cfg.push_feed_forward,
-            cfg.push_objective,
-            seed,
-            "push_feed_forward",
-        )?;
+        let push_ff = feed_forward_pushes(s, cfg, seed)?;
         let mut env = environment(s, cfg, he, n, &push_ff, &mut throwaway)?;
         env.restore(recs)?;
         env.set_sim_pool(part.sim_pool.clone(), part.sim_next)

@@ -167,7 +167,10 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
 }
 
 /// One searched push window's line: the ball's vertical velocity at the
-/// release with the clip's own targets, with the offset, and the clip's.
+/// release with the clip's own targets, with the offset, and the clip's,
+/// and their horizontal speeds; then, where the window has a catch frame,
+/// the ball's distance there from the clip's (relative to the root) with
+/// the clip's own targets and with the offset.
 fn print_push(what: &str, p: &crate::sim::push::PushOffset, lib: &crate::motion::MotionLib) {
     println!(
         "train: {what} {} frames {}..{}: ball v_z at release {:.2} m/s with the clip's own targets, {:.2} with the offset (RMS {:.2} rad, largest {:.2}), clip {:.2}; horizontal speed {:.2}, {:.2}, clip {:.2}",
