@@ -155,9 +155,14 @@ fn a_run_with_the_push_warm_start_killed_and_resumed_matches_too() {
 
 #[test]
 fn a_run_with_the_push_feed_forward_killed_and_resumed_matches_too() {
-    // the push search runs again on a resume, with the run's seed and
-    // objective, and its offsets enter the feed-forward targets of every
-    // step inside a window
+    // the push search runs again on a resume, with the run's seed, and its
+    // offsets enter the feed-forward targets of every step inside a window
+    killed_and_resumed_on_df_with(&["train.push_feed_forward=arms"]);
+}
+
+#[test]
+fn a_run_with_the_push_searched_for_the_catch_killed_and_resumed_matches_too() {
+    // the search on a resume keeps the run's objective too
     killed_and_resumed_on_df_with(&["train.push_feed_forward=arms", "train.push_objective=catch"]);
 }
 
@@ -349,6 +354,15 @@ fn the_push_feed_forward_acts_inside_its_window_in_training_and_evaluation() {
     refused(
         &run,
         &["train.push_objective=catch"],
+        "train.push_objective",
+    );
+    refused(
+        &run,
+        &[
+            "train.residual_action=true",
+            "train.push_feed_forward=arms",
+            "train.push_objective=sm",
+        ],
         "train.push_objective",
     );
 }

@@ -153,8 +153,8 @@ pub struct TrainConfig {
     /// rotations everywhere), or `"arms"` / `"upper"`: inside every push
     /// window of the training clips the target adds the offset that
     /// `skillaug check-ball`'s push search finds on that joint group
-    /// ([`crate::sim::push::push_offsets`], default search settings, the
-    /// run's seed), so the policy starts out pushing the ball as hard as
+    /// ([`crate::sim::push::push_offsets`], default search settings with
+    /// `push_objective`, the run's seed), so the policy starts out pushing the ball as hard as
     /// PD targets near the clip's can. Not in the paper or the reference
     /// code. Not written when off.
     #[serde(skip_serializing_if = "is_push_off")]
@@ -335,8 +335,9 @@ pub struct TrainConfig {
     /// with `residual_action`, inside every push window of the training
     /// clips the feed-forward PD targets add the offset that `skillaug
     /// check-ball`'s push search finds on that joint group
-    /// ([`crate::sim::push::push_offsets`], default search settings, the
-    /// run's seed; [`crate::rl::humanoid::EnvConfig::push_feed_forward`]),
+    /// ([`crate::sim::push::push_offsets`], default search settings with
+    /// `push_objective`, the run's seed;
+    /// [`crate::rl::humanoid::EnvConfig::push_feed_forward`]),
     /// so the hand pushes harder than the clip's own targets make it
     /// without the policy having to find the push. In training and in the
     /// policy's evaluation (the offsets are written to `policy.meta.json`).
@@ -349,11 +350,12 @@ pub struct TrainConfig {
     /// What the push search of `push_feed_forward` and `warm_start_push`
     /// optimises ([`crate::sim::push::PushObjective`]): `"ball"` (the
     /// ball's velocity and position at the release against the clip's),
-    /// `"catch"` (the ball's velocity and its position relative to the root
-    /// where the clip's hand next meets it, after its bounce) or `"sm"` (the
-    /// SM reward over the window and 40 frames after it). Refused when
-    /// neither of the two is on. Not in the paper or the reference code.
-    /// Not written when `"ball"`.
+    /// or `"catch"` (the ball's velocity and its position relative to the
+    /// root where the clip's hand next meets it, after its bounce). Refused
+    /// when neither of the two is on, and for `"sm"` (`skillaug
+    /// check-ball`'s SM objective scores with the paper's weights and
+    /// default reward options, not training's). Not in the paper or the
+    /// reference code. Not written when `"ball"`.
     #[serde(skip_serializing_if = "is_ball_objective")]
     pub push_objective: crate::sim::push::PushObjective,
     /// Rotational inertia of the ball in training and in the policy's
@@ -658,6 +660,12 @@ impl crate::config::Validate for TrainConfig {
                 "{stage}.push_feed_forward already adds the searched offsets to the feed-forward \
                  targets, which the warm start then fits as a zero residual; \
                  {stage}.warm_start_push would add them a second time: set one of the two to \"off\""
+            );
+        }
+        if self.push_objective == crate::sim::push::PushObjective::Sm {
+            anyhow::bail!(
+                "{stage}.push_objective = \"sm\" is check-ball's objective: its SM reward uses the \
+                 paper's weights and default reward options, not this run's; use \"ball\" or \"catch\""
             );
         }
         if self.push_objective != crate::sim::push::PushObjective::Ball

@@ -1375,6 +1375,12 @@ impl<'a> Trainer<'a> {
                 cfg.push_feed_forward.name()
             ));
         }
+        if cfg.push_objective != PushObjective::Ball {
+            on.push(format!(
+                "push_objective={} (the push search's objective)",
+                cfg.push_objective.name()
+            ));
+        }
         if cfg.overlap_rollout {
             on.push("overlap_rollout (rollouts by the policy of one update earlier)".to_string());
         }

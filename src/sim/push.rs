@@ -35,8 +35,9 @@
 //! (paper Eqs. 12-17, training's weights and reward options) summed over
 //! the window and the `sm_frames` frames after it, the humanoid tracking
 //! the clip's own next frames after the release: is a harder push what the
-//! reward the policy learns from asks for? Either way each reported offset
-//! carries its SM sum ([`SmScore`]).
+//! reward the policy learns from asks for? Whatever the objective, the
+//! offsets `skillaug check-ball` reports carry their SM sum ([`SmScore`])
+//! and their cost at the catch frame.
 //!
 //! Measured figures are in docs/training.md ("No nearby targets push as the
 //! clip does").
@@ -348,6 +349,8 @@ fn replay(
     let scored_until = scorer.map_or(w.release, |sc| w.release + sc.frames);
     let catch = w.catch.filter(|_| catch);
     let last = scored_until.max(catch.unwrap_or(0));
+    // the clip frame the world stands at
+    let mut at = w.start;
     for i in w.start..last.min(f.frames - 1) {
         if i == w.release {
             at_release = Some(world.get_state());
@@ -361,6 +364,7 @@ fn replay(
             anyhow::ensure!(i >= w.release, "window frame {} not valid", i + 1);
             break;
         };
+        at = i + 1;
         let rates = rates.then(|| joint_rates(&next.joint_rot, &next.joint_vel));
         let mut t = next.joint_rot.clone();
         if i < w.release {
@@ -403,8 +407,14 @@ fn replay(
     let dp: f64 = (0..3)
         .map(|k| (g.obj_pos[k] as f64 - r.obj_pos[k] as f64).powi(2))
         .sum();
-    // a catch at the loop's end is where the world stands now
-    let at_catch = catch.and(at_catch.or_else(|| Some(world.get_state())));
+    if let (Some(c), None) = (catch, &at_catch) {
+        // the catch is the loop's last frame, or the replay stopped short
+        anyhow::ensure!(
+            at == c,
+            "the replay stopped at frame {at}, before the catch frame {c}"
+        );
+        at_catch = Some(world.get_state());
+    }
     let (catch_cost, catch_err) = match (catch, at_catch) {
         (Some(c), Some(g)) => {
             let r = f.state(c).context("catch frame not valid")?;
@@ -456,8 +466,9 @@ pub struct PushSearch {
     pub vel: [f64; 3],
     /// Cost at the release (module doc), m^2/s^2.
     pub cost: f64,
-    /// Cost at the catch frame (module doc), m^2/s^2, where the search
-    /// replayed to it (objective `"catch"`, or `skillaug check-ball`).
+    /// Cost at the catch frame (module doc), m^2/s^2: every search's best
+    /// offset and the clip's own targets are replayed to it; `None` where
+    /// the window has no catch frame.
     pub catch_cost: Option<f64>,
     /// Distance of the ball at the catch frame from the clip's, both
     /// relative to the root, m (with `catch_cost`).
@@ -519,7 +530,8 @@ fn summary(o: &Outcome, offset: &[f32]) -> PushSearch {
 /// `replayed` scored with it). Each draw replays in its own world (rayon);
 /// draws are made in order from `rng` before they run, so the result does
 /// not depend on the thread count. With a scorer, the best offset's
-/// summary carries its SM score.
+/// summary carries its SM score; where the window has a catch frame, its
+/// cost there.
 #[allow(clippy::too_many_arguments)]
 fn search(
     make: &(dyn Fn() -> Result<World> + Sync),
@@ -532,7 +544,8 @@ fn search(
     rng: &mut ChaCha8Rng,
 ) -> Result<PushSearch> {
     let objective = cfg.objective;
-    // the ball objective's draws are short replays; the SM one scores each
+    // the ball objective's draws end at the release, the catch objective's
+    // at the catch frame; the SM objective scores each
     let during = scorer.filter(|_| objective == PushObjective::Sm);
     let catching = objective == PushObjective::Catch;
     let d = joints.len() * 3;
@@ -573,7 +586,9 @@ fn search(
             best = scored.swap_remove(0);
         }
     }
-    if (scorer.is_some() && best.0.sm.is_none()) || best.0.catch_cost.is_none() {
+    if (scorer.is_some() && best.0.sm.is_none())
+        || (w.catch.is_some() && best.0.catch_cost.is_none())
+    {
         // the best offset, scored once by what its objective did not score
         let again = replay(&mut make()?, f, w, joints, &best.1, false, scorer, true)?;
         best.0.sm = best.0.sm.or(again.sm);
@@ -646,9 +661,10 @@ pub struct PushOffset {
     /// Offset of every joint, rad, `[J*3]` exp-map components (zero off
     /// the searched joints).
     pub offset: Vec<f32>,
-    /// The ball at the release under the clip's own targets (zero offset).
+    /// The ball at the release (and at the catch frame) under the clip's
+    /// own targets (zero offset).
     pub own: PushSearch,
-    /// The ball at the release under the offset.
+    /// The ball at the release (and at the catch frame) under the offset.
     pub found: PushSearch,
     /// The clip's ball velocity at the release, m/s.
     pub vel_ref: [f64; 3],
