@@ -6,8 +6,9 @@ Usage: python3 stages/bounce_spin.py EVAL_FOLDER [RADIUS]
 EVAL_FOLDER holds eval_rollouts.parquet from `skillaug eval ... --set
 'eval.metrics=["sr"]' --record N`; RADIUS is the ball's, m (0.12, the
 BallPlay ball's, by default). For every recorded trial of the `sr` cell it
-finds the bounces of the simulated ball (steps where its centre is at a
-local minimum below 0.2 m, as stages/bounce_times.py does) and, for each,
+finds the bounces of the simulated ball (stages/bounce_times.py's
+`bounces`: steps where its centre is at a local minimum below 0.2 m)
+and, for each,
 prints:
 - the ball's horizontal speed two steps before and three steps after the
   bounce (from the recorded positions, 60 steps a second) and their ratio;
@@ -27,6 +28,8 @@ import math
 import sys
 
 import pyarrow.parquet as pq
+
+from bounce_times import bounces
 
 DT = 1.0 / 60.0
 
@@ -69,10 +72,8 @@ def main():
     for t in sorted(trials):
         d = trials[t]
         steps = sorted(d)
-        z = [d[s][0][2] for s in steps]
-        bounces = [i for i in range(1, len(z) - 1) if z[i] < 0.2 and z[i] <= z[i - 1] and z[i] < z[i + 1]]
         cells = []
-        for k, b in enumerate(bounces):
+        for k, b in enumerate(bounces([d[s][0][2] for s in steps])):
             if b < 2 or b + 3 >= len(steps):
                 continue
             (p0, q0), (p1, q1) = d[steps[b - 2]], d[steps[b - 1]]

@@ -455,6 +455,18 @@ fn df_run(lib: &MotionLib) -> (usize, Vec<ObjectSpec>, SimOptions) {
     (c, objs, SimOptions::for_fps(lib.clips[c].fps as f64))
 }
 
+/// A push search short enough for a test: 12 draws, 3 elites, 3 rounds,
+/// the other settings `skillaug check-ball`'s.
+fn short_push_search() -> skillaug::sim::push::PushConfig {
+    skillaug::sim::push::PushConfig {
+        push_search: true,
+        population: 12,
+        elites: 3,
+        iterations: 3,
+        ..Default::default()
+    }
+}
+
 /// DF `run` replayed open loop under PD from frame 2 for 10 policy steps:
 /// targets the next frame's joint rotations and, when `rates` gives them
 /// for that frame's joint rotations and velocities, those target
@@ -580,13 +592,7 @@ fn the_sm_reward_favours_a_harder_push_than_the_clips_own_targets() {
     use skillaug::sim::push::{fit_pushes_of_clip, PushConfig, PushObjective};
     let (_d, lib, model) = ballplay();
     let (c, objs, opts) = df_run(&lib);
-    let short = PushConfig {
-        push_search: true,
-        population: 12,
-        elites: 3,
-        iterations: 3,
-        ..PushConfig::default()
-    };
+    let short = short_push_search();
     let by_ball = fit_pushes_of_clip(&lib, c, &model, &objs, &opts, &short, 0).unwrap();
     // the SM sum needs a longer search than the ball's cost (12 draws for
     // 3 rounds gain 4 %, with the ball hardly faster)
@@ -648,13 +654,7 @@ fn a_catch_search_brings_the_ball_back_to_the_hand_nearer_the_clips() {
     let (_d, lib, model) = ballplay();
     let (c, objs, opts) = df_run(&lib);
     let f = &lib.frames[c];
-    let by_ball = PushConfig {
-        push_search: true,
-        population: 12,
-        elites: 3,
-        iterations: 3,
-        ..PushConfig::default()
-    };
+    let by_ball = short_push_search();
     let b = fit_pushes_of_clip(&lib, c, &model, &objs, &opts, &by_ball, 0).unwrap();
     let w = b[0].window;
     // `run`'s ball leaves the hand at frame 13, bounces at 19 and meets a
@@ -724,17 +724,11 @@ fn a_catch_search_brings_the_ball_back_to_the_hand_nearer_the_clips() {
 
 #[test]
 fn a_push_search_finds_targets_that_push_harder_than_the_clips_own() {
-    use skillaug::sim::push::{fit_pushes_of_clip, push_windows, PushConfig};
+    use skillaug::sim::push::{fit_pushes_of_clip, push_windows};
     use skillaug::sim::world::hand_bodies;
     let (_d, lib, model) = ballplay();
     let (c, objs, opts) = df_run(&lib);
-    let cfg = PushConfig {
-        push_search: true,
-        population: 12,
-        elites: 3,
-        iterations: 3,
-        ..PushConfig::default()
-    };
+    let cfg = short_push_search();
     // the clip pushes its ball down from its first start frame (2) until
     // the hand leaves it, and again before the next bounce
     let windows = push_windows(&lib.frames[c], &hand_bodies(&model), 0.15, 3);

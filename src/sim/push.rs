@@ -402,11 +402,11 @@ fn replay(
         Some(g) => g,
         None => world.get_state(),
     };
-    let r = f.state(w.release).context("release frame not valid")?;
-    let dv: [f64; 3] = std::array::from_fn(|k| g.obj_linvel[k] as f64 - r.obj_linvel[k] as f64);
-    let dp: f64 = (0..3)
-        .map(|k| (g.obj_pos[k] as f64 - r.obj_pos[k] as f64).powi(2))
-        .sum();
+    let (cost, _) = ball_cost(
+        &g,
+        &f.state(w.release).context("release frame not valid")?,
+        false,
+    );
     if let (Some(c), None) = (catch, &at_catch) {
         // the catch is the loop's last frame, or the replay stopped short
         anyhow::ensure!(
@@ -416,14 +416,10 @@ fn replay(
         at_catch = Some(world.get_state());
     }
     let (catch_cost, catch_err) = match (catch, at_catch) {
-        (Some(c), Some(g)) => {
+        (Some(c), Some(at)) => {
             let r = f.state(c).context("catch frame not valid")?;
-            let rel = |s: &State, k: usize| s.obj_pos[k] as f64 - s.root_pos[k] as f64;
-            let dv: f64 = (0..3)
-                .map(|k| (g.obj_linvel[k] as f64 - r.obj_linvel[k] as f64).powi(2))
-                .sum();
-            let dp: f64 = (0..3).map(|k| (rel(&g, k) - rel(&r, k)).powi(2)).sum();
-            (Some(dv + 25.0 * dp), Some(dp.sqrt()))
+            let (cost, err) = ball_cost(&at, &r, true);
+            (Some(cost), Some(err))
         }
         _ => (None, None),
     };
@@ -438,12 +434,27 @@ fn replay(
         }
     });
     Ok(Outcome {
-        cost: dv.iter().map(|x| x * x).sum::<f64>() + 25.0 * dp,
+        cost,
         vel: std::array::from_fn(|k| g.obj_linvel[k] as f64),
         catch_cost,
         catch_err,
         sm,
     })
+}
+
+/// The module doc's cost of the simulated state `g` against the clip's
+/// `r`, `|v - v_ref|^2 + 25 |p - p_ref|^2` (m^2/s^2), and the distance
+/// `|p - p_ref|` (m), with p the ball's position, relative to the root's
+/// when `from_root` (the catch) and in the world otherwise (the release).
+fn ball_cost(g: &State, r: &State, from_root: bool) -> (f64, f64) {
+    let p = |s: &State, k: usize| {
+        s.obj_pos[k] as f64 - if from_root { s.root_pos[k] as f64 } else { 0.0 }
+    };
+    let dv: f64 = (0..3)
+        .map(|k| (g.obj_linvel[k] as f64 - r.obj_linvel[k] as f64).powi(2))
+        .sum();
+    let dp: f64 = (0..3).map(|k| (p(g, k) - p(r, k)).powi(2)).sum();
+    (dv + 25.0 * dp, dp.sqrt())
 }
 
 impl Outcome {
