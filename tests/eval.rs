@@ -304,17 +304,19 @@ fn a_policy_that_needs_its_reference_gets_it_continued_in_every_trial_cell() {
 
 #[test]
 fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them() {
-    // `train.pd_stiffness_scale`, `train.object_density` and
-    // `train.ball_inertia` travel in policy.meta.json and the evaluation
-    // builds its worlds with them: the same weights, evaluated once as
-    // trained (kp x 4, a 0.6 kg ball with a shell's inertia) and once with
-    // each setting taken out of the description (the model's kp, the
-    // ball's own 7.24 kg, a solid ball), give other trials
+    // `train.pd_stiffness_scale`, `train.object_density`,
+    // `train.ball_inertia` and `train.object_angular_damping` travel in
+    // policy.meta.json and the evaluation builds its worlds with them: the
+    // same weights, evaluated once as trained (kp x 4, a 0.6 kg ball with
+    // a shell's inertia whose spin dies away) and once with each setting
+    // taken out of the description (the model's kp, the ball's own
+    // 7.24 kg, a solid ball, its own damping), give other trials
     let (dir, run, pol) = df_policy(&[
         "train.residual_action=true",
         "train.pd_stiffness_scale=4",
         "train.object_density=83",
         "train.ball_inertia=shell",
+        "train.object_angular_damping=10",
     ]);
     let from = run.to_str().unwrap();
     let meta_path = pol.join("policy.meta.json");
@@ -323,6 +325,7 @@ fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them(
     assert_eq!(meta["train"]["pd_stiffness_scale"], 4.0);
     assert_eq!(meta["train"]["object_density"], 83.0);
     assert_eq!(meta["train"]["ball_inertia"], "shell");
+    assert_eq!(meta["train"]["object_angular_damping"], 10.0);
     let sets = [
         "eval.trials=4",
         "eval.envs=4",
@@ -343,7 +346,12 @@ fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them(
     eval(from, &pol, &again, &sets);
     assert_eq!(mean_sm(&stiff), mean_sm(&again));
     // each setting taken out alone changes the trials
-    for key in ["pd_stiffness_scale", "object_density", "ball_inertia"] {
+    for key in [
+        "pd_stiffness_scale",
+        "object_density",
+        "ball_inertia",
+        "object_angular_damping",
+    ] {
         let mut m = meta.clone();
         m["train"].as_object_mut().unwrap().remove(key);
         std::fs::write(&meta_path, serde_json::to_vec(&m).unwrap()).unwrap();

@@ -142,6 +142,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.energy_bonus_scale=0.05",
             "--set",
             "train.ball_inertia=shell",
+            "--set",
+            "train.object_angular_damping=10",
         ],
     );
 }
@@ -1648,7 +1650,7 @@ fn a_stiffer_drive_keeps_an_open_loop_replay_nearer_its_reference() {
 }
 
 #[test]
-fn a_set_object_density_gives_the_training_ball_its_mass() {
+fn a_set_object_density_or_angular_damping_reaches_the_training_ball() {
     // `train.object_density` replaces the ball's own 1000 kg/m^3 (7.24 kg
     // at radius 0.12 m) in the worlds training builds; 83 kg/m^3 is a
     // basketball's 0.60 kg
@@ -1679,6 +1681,26 @@ fn a_set_object_density_gives_the_training_ball_its_mass() {
     );
     // out of range: refused, naming the key
     refused(&run, &["train.object_density=0"], "train.object_density");
+    // `train.object_angular_damping` sets every object's angular damping
+    // in the worlds training builds (the ball's own: the reference's 0.01)
+    let damping = |cfg: &TrainConfig| -> Vec<f32> {
+        setup_for(&run, cfg)
+            .objects
+            .iter()
+            .map(|o| o.damping[1])
+            .collect()
+    };
+    assert_eq!(damping(&base), vec![0.01]);
+    let damped = TrainConfig {
+        object_angular_damping: Some(10.0),
+        ..base.clone()
+    };
+    assert_eq!(damping(&damped), vec![10.0]);
+    refused(
+        &run,
+        &["train.object_angular_damping=-1"],
+        "train.object_angular_damping",
+    );
 }
 
 #[test]

@@ -850,6 +850,17 @@ fn metadata(
             ),
         ));
     }
+    if let Some(d) = meta.train.object_angular_damping {
+        // the policy was trained on objects whose spin dies away faster: a
+        // consumer must simulate them the same way to reproduce it
+        v.push((
+            "object_angular_damping",
+            format!(
+                "{d}: trained and evaluated with every object's angular velocity damping set \
+                 to this many 1/s in place of its own (train.object_angular_damping)"
+            ),
+        ));
+    }
     if meta.train.ball_inertia == crate::sim::objects::BallInertia::Shell {
         // the policy was trained on a ball that spins more easily: a
         // consumer must simulate it the same way to reproduce it
@@ -1008,6 +1019,13 @@ mod tests {
         let m = policy_model(&stiff, &a).unwrap();
         let v = prop(&m, "ball_inertia").unwrap();
         assert!(v.starts_with("shell: "), "{v}");
+        assert!(!v.contains("  "), "one space between words: {v}");
+        // and a ball whose spin dies away
+        assert_eq!(prop(&m, "object_angular_damping"), None, "own damping");
+        stiff.train.object_angular_damping = Some(10.0);
+        let m = policy_model(&stiff, &a).unwrap();
+        let v = prop(&m, "object_angular_damping").unwrap();
+        assert!(v.starts_with("10: "), "{v}");
         assert!(!v.contains("  "), "one space between words: {v}");
     }
 

@@ -157,6 +157,7 @@ impl Setup {
             );
         }
         objects::set_ball_inertia(&mut objects, cfg.ball_inertia);
+        objects::set_angular_damping(&mut objects, cfg.object_angular_damping.map(|d| d as f32));
         let sim = SimOptions {
             pd_stiffness_scale: cfg.pd_stiffness_scale as f32,
             ..SimOptions::for_fps(first.fps as f64)
@@ -1368,6 +1369,9 @@ impl<'a> Trainer<'a> {
         }
         if cfg.ball_inertia == crate::sim::objects::BallInertia::Shell {
             on.push("ball_inertia=shell (2/3 m r^2)".to_string());
+        }
+        if let Some(d) = cfg.object_angular_damping {
+            on.push(format!("object_angular_damping={d} 1/s"));
         }
         if cfg.push_feed_forward != PushJoints::Off {
             on.push(format!(

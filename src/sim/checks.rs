@@ -65,6 +65,9 @@ pub struct ReplayPhysics {
     /// Rotational inertia of the ball: `"solid"` (the default, the
     /// reference's) or `"shell"` (a basketball's, the same mass).
     pub ball_inertia: super::objects::BallInertia,
+    /// Angular velocity damping of every object, 1/s, in place of its own
+    /// (0.01). Absent: each object's own.
+    pub object_angular_damping: Option<f32>,
 }
 
 impl Default for ReplayPhysics {
@@ -78,13 +81,14 @@ impl Default for ReplayPhysics {
             kd_scale: 1.0,
             object_density: None,
             ball_inertia: super::objects::BallInertia::Solid,
+            object_angular_damping: None,
         }
     }
 }
 
 impl crate::config::Validate for ReplayPhysics {
     /// Counts from 1 to 64, gain factors in (0, 100], a density in
-    /// (0, 100000] kg/m^3.
+    /// (0, 100000] kg/m^3, an angular damping in [0, 1000] 1/s.
     fn validate(&self, stage: &str) -> Result<()> {
         let c = crate::config::Check::new(stage);
         c.count("physics.rate_factor", self.rate_factor as u64, 1, 64)?;
@@ -104,6 +108,9 @@ impl crate::config::Validate for ReplayPhysics {
         c.range("physics.kd_scale", self.kd_scale, 1e-6, 100.0)?;
         if let Some(d) = self.object_density {
             c.range("physics.object_density", d as f64, 1e-3, 1e5)?;
+        }
+        if let Some(d) = self.object_angular_damping {
+            c.range("physics.object_angular_damping", d as f64, 0.0, 1000.0)?;
         }
         Ok(())
     }
@@ -132,11 +139,12 @@ impl ReplayPhysics {
         m
     }
 
-    /// `objects` with their density replaced, when one is set, and the
-    /// ball's inertia.
+    /// `objects` with their density and angular damping replaced, where
+    /// set, and the ball's inertia.
     pub fn objects(&self, objects: &mut [ObjectSpec]) {
         super::objects::set_density(objects, self.object_density);
         super::objects::set_ball_inertia(objects, self.ball_inertia);
+        super::objects::set_angular_damping(objects, self.object_angular_damping);
     }
 }
 

@@ -187,6 +187,20 @@ pub fn set_density(objects: &mut [ObjectSpec], density: Option<f32>) {
     }
 }
 
+/// Set every object's angular velocity damping to `damping`, 1/s
+/// (rapier's `angular_damping`: the angular velocity is scaled by
+/// 1 / (1 + dt damping) at every physics step of dt seconds), in place of
+/// its own (0.01, the reference's `humanoid_object_task.py`); `None`
+/// keeps each object's own (`train.object_angular_damping`,
+/// `check-ball.physics.object_angular_damping`).
+pub fn set_angular_damping(objects: &mut [ObjectSpec], damping: Option<f32>) {
+    if let Some(d) = damping {
+        for o in objects {
+            o.damping[1] = d;
+        }
+    }
+}
+
 /// Give every sphere object the rotational inertia `inertia`
 /// (`train.ball_inertia`, `check-ball.physics.ball_inertia`); its mass
 /// stays the density's.
