@@ -205,7 +205,11 @@ fn a_ball_whose_spin_dies_away_lands_without_the_roll_its_bounce_gave_it() {
     // lands without spin (measured 0.0005) and keeps 0.78 of it
     let roll = |(v, w): (f32, f32)| w * r / v;
     assert!(roll(own[1]) > 0.75, "own ball's roll {}", roll(own[1]));
-    assert!(roll(damped[1]) < 0.05, "damped ball's roll {}", roll(damped[1]));
+    assert!(
+        roll(damped[1]) < 0.05,
+        "damped ball's roll {}",
+        roll(damped[1])
+    );
     let kept = |b: &[(f32, f32)]| b[2].0 / b[1].0;
     assert!(kept(&own) > 0.95, "own ball kept {}", kept(&own));
     assert!(kept(&damped) < 0.85, "damped ball kept {}", kept(&damped));
