@@ -1003,30 +1003,29 @@ mod tests {
         let a = agent(od, 156, &[4], true);
         let mut stiff = meta(sk, &["ball"], false, od);
         stiff.train.pd_stiffness_scale = 4.0;
-        let m = policy_model(&stiff, &a).unwrap();
-        let v = prop(&m, "pd_stiffness_scale").unwrap();
-        assert!(v.starts_with("4: "), "{v}");
-        assert_eq!(prop(&m, "object_density"), None, "the ball's own density");
+        // each setting is absent from the metadata until it is set, then
+        // declared with its value first, in one-space sentences
+        let declared = |meta: &PolicyMeta, key: &str, value: &str| {
+            let v = prop(&policy_model(meta, &a).unwrap(), key).unwrap();
+            assert!(v.starts_with(&format!("{value}: ")), "{key}: {v}");
+            assert!(!v.contains("  "), "one space between words: {v}");
+        };
+        declared(&stiff, "pd_stiffness_scale", "4");
+        let absent = |meta: &PolicyMeta, key: &str| {
+            assert_eq!(prop(&policy_model(meta, &a).unwrap(), key), None, "{key}");
+        };
         // a lighter ball is declared too
+        absent(&stiff, "object_density");
         stiff.train.object_density = Some(83.0);
-        let m = policy_model(&stiff, &a).unwrap();
-        let v = prop(&m, "object_density").unwrap();
-        assert!(v.starts_with("83: "), "{v}");
-        assert!(!v.contains("  "), "one space between words: {v}");
+        declared(&stiff, "object_density", "83");
         // and a ball with a shell's inertia
-        assert_eq!(prop(&m, "ball_inertia"), None, "a solid ball");
+        absent(&stiff, "ball_inertia");
         stiff.train.ball_inertia = crate::sim::objects::BallInertia::Shell;
-        let m = policy_model(&stiff, &a).unwrap();
-        let v = prop(&m, "ball_inertia").unwrap();
-        assert!(v.starts_with("shell: "), "{v}");
-        assert!(!v.contains("  "), "one space between words: {v}");
+        declared(&stiff, "ball_inertia", "shell");
         // and a ball whose spin dies away
-        assert_eq!(prop(&m, "object_angular_damping"), None, "own damping");
+        absent(&stiff, "object_angular_damping");
         stiff.train.object_angular_damping = Some(10.0);
-        let m = policy_model(&stiff, &a).unwrap();
-        let v = prop(&m, "object_angular_damping").unwrap();
-        assert!(v.starts_with("10: "), "{v}");
-        assert!(!v.contains("  "), "one space between words: {v}");
+        declared(&stiff, "object_angular_damping", "10");
     }
 
     #[test]
