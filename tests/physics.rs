@@ -175,7 +175,9 @@ fn a_ball_whose_spin_dies_away_lands_without_the_roll_its_bounce_gave_it() {
         let ball = objects.pop().unwrap();
         let mut w = lone_ball(ball, [0.0, 0.0, 0.5], [3.4, 0.0, -5.5], &opts);
         // (horizontal speed, spin about the axis of a forward roll) just
-        // before each bounce, then after the last
+        // before each bounce, then after the last; the ball's angular
+        // velocity comes in its body frame, which is the world's here
+        // (the spin is about y alone, which turns y onto itself)
         let mut out = Vec::new();
         let mut prev = w.get_state();
         for _ in 0..(2.0 * opts.physics_hz) as usize {
@@ -202,7 +204,7 @@ fn a_ball_whose_spin_dies_away_lands_without_the_roll_its_bounce_gave_it() {
     // the reference's ball lands the second time nearly rolling (w r / v
     // measured 0.85: rapier's one contact stops most of the skid, not
     // all) and keeps all of its speed (measured 1.001); the damped one
-    // lands without spin (measured 0.0005) and keeps 0.78 of it
+    // lands without spin (measured 6e-5) and keeps 0.78 of it
     let roll = |(v, w): (f32, f32)| w * r / v;
     assert!(roll(own[1]) > 0.75, "own ball's roll {}", roll(own[1]));
     assert!(
@@ -929,4 +931,27 @@ fn the_clips_own_push_falls_short_under_finer_steps_stiffer_drives_and_a_lighter
     assert_eq!(objs[0].density, 83.0);
     let (_, v) = own(&light, &objs);
     assert!(v > clip + 1.5, "light ball: {v} against the clip's {clip}");
+    // the angular damping replaces each object's own (0.01) and leaves the
+    // density as it was; out of range it is refused, naming the key
+    let spinless = ReplayPhysics {
+        object_angular_damping: Some(10.0),
+        ..ReplayPhysics::default()
+    };
+    let mut damped = vec![ObjectSpec::ball()];
+    assert_eq!(damped[0].damping[1], 0.01);
+    spinless.objects(&mut damped);
+    assert_eq!(damped[0].damping, [0.01, 10.0]);
+    assert_eq!(damped[0].density, 1000.0);
+    use skillaug::config::Validate;
+    let err = ReplayPhysics {
+        object_angular_damping: Some(-1.0),
+        ..ReplayPhysics::default()
+    }
+    .validate("check-ball")
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("check-ball.physics.object_angular_damping = -1"),
+        "{err}"
+    );
 }

@@ -1699,7 +1699,7 @@ fn a_set_object_density_or_angular_damping_reaches_the_training_ball() {
     refused(
         &run,
         &["train.object_angular_damping=-1"],
-        "train.object_angular_damping",
+        "train.object_angular_damping = -1: must be a finite number in [0, 1000]",
     );
 }
 

@@ -35,7 +35,9 @@
 //! trained with the history encoder (`--he`) that the last `he_dim`
 //! observation entries are its embedding, which the model takes as input
 //! and does not compute; for a policy trained on a stiffer character
-//! (`train.pd_stiffness_scale` other than 1) that factor on kp.
+//! (`train.pd_stiffness_scale` other than 1) that factor on kp, and for
+//! one trained with other ball physics (`train.object_density`,
+//! `train.ball_inertia`, `train.object_angular_damping`) those settings.
 //!
 //! Encoding: the ONNX messages ([`proto`]) are declared here by hand with
 //! `prost` derive macros and the field numbers of `onnx/onnx.proto` of the

@@ -18,7 +18,7 @@
 //! `--set check-ball.physics.KEY=VALUE` runs both under other physics
 //! ([`crate::sim::checks::ReplayPhysics`]: more physics steps or solver
 //! iterations, scaled PD gains, another object density, a ball with a
-//! shell's inertia), to ask whether
+//! shell's inertia, another angular damping), to ask whether
 //! the simulation set-up is what keeps the clips' motion from pushing
 //! their ball.
 
