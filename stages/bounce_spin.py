@@ -21,7 +21,8 @@ prints:
 every small dip of its height, as in stages/bounce_times.py.)
 A solid sphere that lands with horizontal speed v and backspin b and
 leaves the floor rolling keeps (5 v - 2 b) / 7: 5/7 of its speed without
-spin, 0.52 of it (the captured DF ball's) with b = 0.68 v. Then, over all
+spin, 0.52 of it (about what the captured DF ball keeps, 0.47-0.52 by
+the frames read) with b = 0.68 v. Then, over all
 trials, the means for each bounce in the list. Needs pyarrow only.
 """
 import math

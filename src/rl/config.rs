@@ -154,9 +154,9 @@ pub struct TrainConfig {
     /// window of the training clips the target adds the offset that
     /// `skillaug check-ball`'s push search finds on that joint group
     /// ([`crate::sim::push::push_offsets`], default search settings with
-    /// `push_objective`, the run's seed), so the policy starts out pushing the ball as hard as
-    /// PD targets near the clip's can. Not in the paper or the reference
-    /// code. Not written when off.
+    /// `push_objective`, the run's seed), so the policy starts out pushing
+    /// the ball as hard as PD targets near the clip's can. Not in the paper
+    /// or the reference code. Not written when off.
     #[serde(skip_serializing_if = "is_push_off")]
     pub warm_start_push: PushJoints,
     /// First iterations that update only the critic (0 = none).

@@ -348,15 +348,18 @@ fn replay(
     let (mut at_release, mut at_catch) = (None, None);
     let scored_until = scorer.map_or(w.release, |sc| w.release + sc.frames);
     let catch = w.catch.filter(|_| catch);
-    let last = scored_until.max(catch.unwrap_or(0));
-    // the clip frame the world stands at
-    let mut at = w.start;
-    for i in w.start..last.min(f.frames - 1) {
+    // the world stands at clip frame i at the top of each pass; the last
+    // pass only takes the states measured there
+    let end = scored_until.max(catch.unwrap_or(0)).min(f.frames - 1);
+    for i in w.start..=end {
         if i == w.release {
             at_release = Some(world.get_state());
         }
         if Some(i) == catch {
             at_catch = Some(world.get_state());
+        }
+        if i == end {
+            break;
         }
         let Some(next) = f.state(i + 1) else {
             // a missing frame ends the scored part; the window's frames
@@ -364,7 +367,6 @@ fn replay(
             anyhow::ensure!(i >= w.release, "window frame {} not valid", i + 1);
             break;
         };
-        at = i + 1;
         let rates = rates.then(|| joint_rates(&next.joint_rot, &next.joint_vel));
         let mut t = next.joint_rot.clone();
         if i < w.release {
@@ -398,30 +400,25 @@ fn replay(
             None => world.step(),
         }
     }
-    let g = match at_release {
-        Some(g) => g,
-        None => world.get_state(),
-    };
+    // the release is at or before `end`, and the loop errs before it
+    let g = at_release.context("the replay stopped before the release frame")?;
     let (cost, _) = ball_cost(
         &g,
         &f.state(w.release).context("release frame not valid")?,
         false,
     );
-    if let (Some(c), None) = (catch, &at_catch) {
-        // the catch is the loop's last frame, or the replay stopped short
-        anyhow::ensure!(
-            at == c,
-            "the replay stopped at frame {at}, before the catch frame {c}"
-        );
-        at_catch = Some(world.get_state());
-    }
-    let (catch_cost, catch_err) = match (catch, at_catch) {
-        (Some(c), Some(at)) => {
+    let (catch_cost, catch_err) = match catch {
+        Some(c) => {
+            // catch_frame only returns frames with every frame up to them
+            // valid, so a replay cannot stop short of one; if it did, err
+            let at = at_catch.with_context(|| {
+                format!("the replay stopped at a missing frame before the catch frame {c}")
+            })?;
             let r = f.state(c).context("catch frame not valid")?;
             let (cost, err) = ball_cost(&at, &r, true);
             (Some(cost), Some(err))
         }
-        _ => (None, None),
+        None => (None, None),
     };
     let sm = scorer.map(|_| {
         let n = score.steps.max(1) as f64;
