@@ -433,6 +433,25 @@ fn seams_and_check_contact_print_a_row_per_clip() {
     for name in ["013_018pickle_run_4", "009_006pickle_dribble2shot"] {
         assert!(text.lines().any(|l| l.contains(name)), "{text}");
     }
+    // training's table when the reference ball's flights are simulated:
+    // DF's clips left where df-loop leaves them, at the same seams
+    let seams = |extra: &[&str]| -> Vec<String> {
+        let mut a = vec!["seams", "--from", from, "--out", out.to_str().unwrap()];
+        for kv in ["train.skills=[\"run\"]", "train.seam_leave_search_s=0.67"]
+            .iter()
+            .chain(extra)
+        {
+            a.extend_from_slice(&["--set", kv]);
+        }
+        ok(&a)
+            .lines()
+            .filter(|l| l.starts_with("run "))
+            .map(String::from)
+            .collect()
+    };
+    let captured = seams(&[]);
+    assert_eq!(captured.len(), 2, "{captured:?}");
+    assert_eq!(seams(&["train.reference_ball=simulated"]), captured);
     let text = ok(&[
         "check-contact",
         "--from",
@@ -498,6 +517,81 @@ fn a_ball_replayed_under_the_clips_motion_falls_and_bounces_as_the_clips_does() 
         6,
         "{text}"
     );
+}
+
+#[test]
+fn a_simulated_reference_flight_reaches_the_catch_that_the_captured_release_misses() {
+    // `train.reference_ball = "simulated"` (src/sim/ball_path.rs): DF
+    // `run` releases its ball at frame 13 and its hand meets it again at
+    // frame 34, after the bounce. A simulated ball released as the clip's
+    // misses the clip's ball there by 0.28 m, ahead of it (the captured
+    // bounce keeps 0.48 of the horizontal speed, the simulated one more);
+    // the solved release reaches it and leaves the hand more slowly.
+    use skillaug::sim::ball_path::{flight_frames, simulate_flights, MISS_TOLERANCE};
+    use skillaug::sim::push::Scene;
+    let (_d, mut lib, model) = ballplay();
+    let (c, objs, opts) = df_run(&lib);
+    let hand = skillaug::sim::world::hand_bodies(&model);
+    assert_eq!(flight_frames(&lib.frames[c], &hand, 0.15), vec![(13, 34)]);
+    let before = lib.frames[c].clone();
+    let scene = Scene {
+        model: &model,
+        objects: &objs,
+        opts: &opts,
+    };
+    let flights = simulate_flights(&mut lib, &[c], scene, 0.15).unwrap();
+    assert_eq!(flights.len(), 1);
+    let fl = &flights[0];
+    assert_eq!((fl.clip, fl.release, fl.catch), (c, 13, 34));
+    assert!(fl.applied && fl.miss_sim <= MISS_TOLERANCE, "{fl:?}");
+    assert!(
+        fl.miss_clip > 0.2,
+        "the captured release misses by {}",
+        fl.miss_clip
+    );
+    let h = |v: [f64; 3]| v[0].hypot(v[1]);
+    assert!(
+        h(fl.v_sim) < 0.8 * h(fl.v_clip),
+        "horizontal speed {} against the clip's {}",
+        h(fl.v_sim),
+        h(fl.v_clip)
+    );
+    assert!((fl.v_sim[2] - fl.v_clip[2]).abs() < 0.3, "{fl:?}");
+    // only object 0's frames 13..34 change (13 only in its velocities);
+    // the humanoid and the contact flags are the clip's
+    let after = &lib.frames[c];
+    assert_eq!(after.body_pos, before.body_pos);
+    assert_eq!(after.joint_rot, before.joint_rot);
+    assert_eq!(after.contact, before.contact);
+    for i in 0..before.frames {
+        let pos = |f: &skillaug::motion::clip::ClipFrames| f.obj_pos[i * 3..i * 3 + 3].to_vec();
+        let vel = |f: &skillaug::motion::clip::ClipFrames| f.obj_linvel[i * 3..i * 3 + 3].to_vec();
+        let moved = (14..34).contains(&i);
+        assert_eq!(pos(after) != pos(&before), moved, "frame {i} position");
+        assert_eq!(
+            vel(after) != vel(&before),
+            (13..34).contains(&i),
+            "frame {i} velocity"
+        );
+    }
+    // the written frames are a ball's flight: released from frame 13's
+    // reference alone in a world, it passes every later frame's position
+    // and reaches the catch
+    let r = lib.state(c, 13).unwrap();
+    let mut w = lone_ball(
+        objs[0].clone(),
+        [r.obj_pos[0], r.obj_pos[1], r.obj_pos[2]],
+        [r.obj_linvel[0], r.obj_linvel[1], r.obj_linvel[2]],
+        &opts,
+    );
+    for i in 14..=34 {
+        w.step();
+        let p = w.get_state().obj_pos;
+        let f = lib.state(c, i).unwrap().obj_pos;
+        let d = (0..3).map(|k| (p[k] - f[k]).powi(2)).sum::<f32>().sqrt();
+        let tol = if i == 34 { MISS_TOLERANCE as f32 } else { 1e-3 };
+        assert!(d <= tol, "frame {i}: {d} m from the written ball");
+    }
 }
 
 /// The DF clip `run` of BallPlay (it pushes its ball down from frame 2):

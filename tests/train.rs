@@ -75,8 +75,9 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // from 0.5 to 0.25 over the run (its strength follows the samples),
     // seams matched to the simulated state, correlated action noise
     // (each running episode's last noise travels in the checkpoint), a
-    // stiffer PD drive and a reference clock that follows the ball (its
+    // stiffer PD drive, a reference clock that follows the ball (its
     // waits and skips are rebuilt by the replay of each episode's actions)
+    // and a reference ball whose flights are simulated
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -144,6 +145,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.ball_inertia=shell",
             "--set",
             "train.object_angular_damping=10",
+            "--set",
+            "train.reference_ball=simulated",
         ],
     );
 }
@@ -1700,6 +1703,88 @@ fn a_set_object_density_or_angular_damping_reaches_the_training_ball() {
         &run,
         &["train.object_angular_damping=-1"],
         "train.object_angular_damping = -1: must be a finite number in [0, 1000]",
+    );
+}
+
+#[test]
+fn a_simulated_reference_ball_replaces_the_clips_flights_in_training() {
+    use skillaug::sim::ball_path::ReferenceBall;
+    // `train.reference_ball = "simulated"` (src/sim/ball_path.rs): the
+    // library training samples and scores against has DF's three flights
+    // (run2 3..14 and 56..72, run 13..34) replaced by simulated ones that
+    // reach the clips' catches, and nothing else changed
+    let (_dir, run) = ingested("ballplay");
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        ..TrainConfig::default()
+    };
+    let captured = setup_for(&run, &base);
+    assert!(captured.flights.is_empty());
+    let simulated = setup_for(
+        &run,
+        &TrainConfig {
+            reference_ball: ReferenceBall::Simulated,
+            ..base.clone()
+        },
+    );
+    let found: Vec<(&str, usize, usize)> = simulated
+        .flights
+        .iter()
+        .map(|f| {
+            (
+                simulated.lib.clips[f.clip].name.as_str(),
+                f.release,
+                f.catch,
+            )
+        })
+        .collect();
+    assert_eq!(
+        found,
+        vec![
+            ("013_018pickle_run2_5", 3, 14),
+            ("013_018pickle_run2_5", 56, 72),
+            ("013_018pickle_run_4", 13, 34)
+        ]
+    );
+    assert!(simulated
+        .flights
+        .iter()
+        .all(|f| f.applied && f.bounces == 1));
+    for c in 0..captured.lib.clips.len() {
+        let (a, b) = (&captured.lib.frames[c], &simulated.lib.frames[c]);
+        assert_eq!(
+            a.body_pos, b.body_pos,
+            "clip {c}: the humanoid is the clip's"
+        );
+        assert_eq!(a.contact, b.contact);
+        let flown = |i: usize| {
+            simulated
+                .flights
+                .iter()
+                .any(|f| f.clip == c && f.release < i && i < f.catch)
+        };
+        for i in 0..a.frames {
+            let p = |f: &skillaug::motion::clip::ClipFrames| f.obj_pos[i * 3..i * 3 + 3].to_vec();
+            assert_eq!(p(a) != p(b), flown(i), "clip {c} frame {i}");
+        }
+    }
+    // the setting travels with the run, and a dataset without a ball is
+    // refused, naming it
+    let (_loco_dir, loco) = ingested("locomotion");
+    let err = skillaug::rl::trainer::Setup::load(
+        &loco,
+        Some(&data_root()),
+        &TrainConfig {
+            reference_ball: ReferenceBall::Simulated,
+            ..TrainConfig::default()
+        },
+        &skillaug::augment::settings::StfConfig::default(),
+    )
+    .err()
+    .expect("refused");
+    assert!(
+        format!("{err:#}").contains("train.reference_ball = \"simulated\": the training clips"),
+        "{err:#}"
     );
 }
 

@@ -377,6 +377,19 @@ pub struct TrainConfig {
     /// Not in the paper or the reference code. Not written when absent.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub object_angular_damping: Option<f64>,
+    /// The ball the training reference follows between each push's release
+    /// and the frame where the clip's hand meets it again: `"captured"`
+    /// (the clip's) or `"simulated"`, the flight a simulated ball released
+    /// without spin takes to reach the clip's ball at that frame
+    /// ([`crate::sim::ball_path`]), in training and in the evaluation of
+    /// the policy. Not in the paper or the reference code. Not written
+    /// when captured.
+    #[serde(skip_serializing_if = "is_captured")]
+    pub reference_ball: crate::sim::ball_path::ReferenceBall,
+}
+
+fn is_captured(b: &crate::sim::ball_path::ReferenceBall) -> bool {
+    *b == crate::sim::ball_path::ReferenceBall::Captured
 }
 
 fn is_ball_objective(o: &crate::sim::push::PushObjective) -> bool {
@@ -573,6 +586,7 @@ impl Default for TrainConfig {
             push_objective: crate::sim::push::PushObjective::Ball,
             ball_inertia: crate::sim::objects::BallInertia::Solid,
             object_angular_damping: None,
+            reference_ball: crate::sim::ball_path::ReferenceBall::Captured,
         }
     }
 }

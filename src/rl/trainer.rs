@@ -65,6 +65,9 @@ pub struct Setup {
     /// The frames a seam may continue at with `train.seam_match =
     /// "simulation"` (empty otherwise).
     pub seam_pool: crate::augment::seam::SeamPool,
+    /// The ball flights `train.reference_ball = "simulated"` solved, one
+    /// per push window with a catch frame (empty when captured).
+    pub flights: Vec<crate::sim::ball_path::Flight>,
 }
 
 impl Setup {
@@ -163,6 +166,8 @@ impl Setup {
             ..SimOptions::for_fps(first.fps as f64)
         };
         let fps = first.fps as f64;
+        let mut lib = lib;
+        let flights = reference_flights(&mut lib, &clips, &model, &objects, &sim, cfg)?;
         let (lib, edges) = if cfg.seam_leave_search_s > 0.0 {
             leave_early(lib, edges, &clips, cfg, fps)
         } else {
@@ -177,6 +182,7 @@ impl Setup {
         Ok(Setup {
             seams,
             seam_pool,
+            flights,
             fk: stf_cfg.fk,
             lib,
             edges,
@@ -197,6 +203,58 @@ impl Setup {
             .filter(|sk| self.clips.iter().any(|c| self.lib.clips[*c].skill == *sk))
             .collect()
     }
+}
+
+/// With `train.reference_ball = "simulated"`, replace the ball flights of
+/// the trained `clips` by simulated ones
+/// ([`crate::sim::ball_path::simulate_flights`], in the training physics,
+/// push windows as the push search finds them) and return them; nothing
+/// otherwise.
+///
+/// # Errors
+/// The setting on while the training clips have no ball, or none of
+/// their pushes has a catch frame to reach, naming `train.reference_ball`;
+/// as [`crate::sim::ball_path::simulate_flights`].
+fn reference_flights(
+    lib: &mut MotionLib,
+    clips: &[usize],
+    model: &Model,
+    objects: &[crate::sim::ObjectSpec],
+    sim: &SimOptions,
+    cfg: &TrainConfig,
+) -> Result<Vec<crate::sim::ball_path::Flight>> {
+    use crate::sim::ball_path::ReferenceBall;
+    if cfg.reference_ball == ReferenceBall::Captured {
+        return Ok(Vec::new());
+    }
+    let names = clips
+        .iter()
+        .map(|&c| lib.clips[c].name.as_str())
+        .collect::<Vec<_>>()
+        .join(", ");
+    if objects.first().is_none_or(|o| o.name != "ball") {
+        bail!(
+            "train.reference_ball = \"simulated\": the training clips ({}) have no ball; set it \
+             to \"captured\"",
+            names
+        );
+    }
+    let scene = crate::sim::push::Scene {
+        model,
+        objects,
+        opts: sim,
+    };
+    let radius = crate::sim::push::PushConfig::default().hand_radius;
+    let flights = crate::sim::ball_path::simulate_flights(lib, clips, scene, radius)?;
+    if flights.is_empty() {
+        bail!(
+            "train.reference_ball = \"simulated\": no push of the training clips ({}) has a \
+             frame where the hand meets the ball again after its bounce, so there is no flight \
+             to simulate; set it to \"captured\"",
+            names
+        );
+    }
+    Ok(flights)
 }
 
 /// `lib` with each trained clip of `clips` cut after the frame at which
@@ -1372,6 +1430,12 @@ impl<'a> Trainer<'a> {
         }
         if let Some(d) = cfg.object_angular_damping {
             on.push(format!("object_angular_damping={d} 1/s"));
+        }
+        if cfg.reference_ball != crate::sim::ball_path::ReferenceBall::Captured {
+            on.push(format!(
+                "reference_ball={} (flights from release to catch simulated)",
+                cfg.reference_ball.name()
+            ));
         }
         if cfg.push_feed_forward != PushJoints::Off {
             on.push(format!(

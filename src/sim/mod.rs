@@ -3,6 +3,7 @@
 //! independent worlds stepped in parallel ([`vec_env`]), with accuracy
 //! ([`checks`]) and speed ([`mod@bench`]) measurements.
 
+pub mod ball_path;
 pub mod bench;
 pub mod checks;
 pub mod mjcf;

@@ -213,7 +213,7 @@ pub fn push_windows(
 
 /// Whether a hand body origin of `s` (`hand` marks the hand bodies) is
 /// within `hand_radius` m of object 0's centre (`s` has an object).
-fn hand_near(s: &State, hand: &[bool], hand_radius: f64) -> bool {
+pub(crate) fn hand_near(s: &State, hand: &[bool], hand_radius: f64) -> bool {
     hand.iter().enumerate().filter(|(_, h)| **h).any(|(b, _)| {
         let d2: f64 = (0..3)
             .map(|k| (s.body_pos[b * 3 + k] as f64 - s.obj_pos[k] as f64).powi(2))

@@ -4,7 +4,9 @@
 //! (root x, y and heading aligned), the similarity β and the masked states
 //! N that Eq. 20 puts at the seam (`[sample-stf]` τ, N_max and rule). With
 //! `train.seam_leave_search_s` the clips are first cut where training
-//! leaves them, and `last` is that frame.
+//! leaves them, and `last` is that frame. With `train.reference_ball =
+//! "simulated"` the table is that of training's library, the ball's
+//! flights simulated ([`crate::sim::ball_path`]).
 
 use super::Common;
 use crate::augment::{n_masked, seam};
@@ -15,9 +17,21 @@ pub fn run(common: &Common) -> Result<()> {
     let cfg: crate::rl::config::TrainConfig = common.settings("train")?;
     let stf: crate::augment::settings::StfConfig = common.settings("sample-stf")?;
     let (p, _) = stf.params()?;
-    let mut lib = crate::table::load_library(common.input_dir())?;
+    let mut lib = if cfg.reference_ball == crate::sim::ball_path::ReferenceBall::Simulated {
+        // the ball's simulated flights can move the seams: take training's
+        // library (its trained clips cut as training cuts them)
+        crate::rl::trainer::Setup::load(
+            common.input_dir(),
+            common.args.data_root.as_deref(),
+            &cfg,
+            &stf,
+        )?
+        .lib
+    } else {
+        crate::table::load_library(common.input_dir())?
+    };
     let fps = lib.clips.first().map_or(60.0, |c| c.fps as f64);
-    if cfg.seam_leave_search_s > 0.0 {
+    if cfg.seam_leave_search_s > 0.0 && cfg.reference_ball == Default::default() {
         let all: Vec<usize> = (0..lib.clips.len()).collect();
         seam::cut_at_leave_frames(
             &mut lib,

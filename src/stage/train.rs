@@ -98,6 +98,9 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
         for p in &t.push_ff {
             print_push("push feed-forward", p, &s.lib);
         }
+        for f in &s.flights {
+            print_flight(f, &s.lib);
+        }
         println!("{}", t.describe(sw.resume));
     }
     let dataset = s.lib.clips[0].dataset.clone();
@@ -164,6 +167,30 @@ fn run_ranks(common: &Common, sw: &Switches, comm: &dyn Comm) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// One simulated reference flight's line (`train.reference_ball`): the
+/// clip's release velocity, the solved one, and how far from the clip's
+/// ball at the catch frame a ball released with each lands.
+fn print_flight(f: &crate::sim::ball_path::Flight, lib: &crate::motion::MotionLib) {
+    let h = |v: &[f64; 3]| v[0].hypot(v[1]);
+    println!(
+        "train: reference ball {} frames {}..{}: released at v_z {:.2} m/s, horizontal {:.2} (clip: {:.2}, {:.2}); at the catch {:.3} m from the clip's ball (released as the clip's: {:.2} m){}",
+        lib.clips[f.clip].name,
+        f.release,
+        f.catch,
+        f.v_sim[2],
+        h(&f.v_sim),
+        f.v_clip[2],
+        h(&f.v_clip),
+        f.miss_sim,
+        f.miss_clip,
+        match (f.applied, f.bounces) {
+            (true, _) => String::new(),
+            (false, 1) => "; not solved, the clip's ball kept".into(),
+            (false, n) => format!("; the solution bounces {n} times, the clip's ball kept"),
+        }
+    );
 }
 
 /// One searched push window's line: the ball's vertical velocity at the
