@@ -305,21 +305,18 @@ fn a_policy_that_needs_its_reference_gets_it_continued_in_every_trial_cell() {
 #[test]
 fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them() {
     // `train.pd_stiffness_scale`, `train.object_density`,
-    // `train.ball_inertia`, `train.object_angular_damping` and
-    // `train.reference_ball` travel in policy.meta.json and the evaluation
-    // builds its worlds and its reference with them: the same weights,
-    // evaluated once as trained (kp x 4, a 0.6 kg ball with a shell's
-    // inertia whose spin dies away, scored against simulated flights) and
-    // once with each setting taken out of the description (the model's kp,
-    // the ball's own 7.24 kg, a solid ball, its own damping, the captured
-    // ball), give other trials
+    // `train.ball_inertia` and `train.object_angular_damping` travel in
+    // policy.meta.json and the evaluation builds its worlds with them: the
+    // same weights, evaluated once as trained (kp x 4, a 0.6 kg ball with
+    // a shell's inertia whose spin dies away) and once with each setting
+    // taken out of the description (the model's kp, the ball's own
+    // 7.24 kg, a solid ball, its own damping), give other trials
     let (dir, run, pol) = df_policy(&[
         "train.residual_action=true",
         "train.pd_stiffness_scale=4",
         "train.object_density=83",
         "train.ball_inertia=shell",
         "train.object_angular_damping=10",
-        "train.reference_ball=simulated",
     ]);
     let from = run.to_str().unwrap();
     let meta_path = pol.join("policy.meta.json");
@@ -329,7 +326,6 @@ fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them(
     assert_eq!(meta["train"]["object_density"], 83.0);
     assert_eq!(meta["train"]["ball_inertia"], "shell");
     assert_eq!(meta["train"]["object_angular_damping"], 10.0);
-    assert_eq!(meta["train"]["reference_ball"], "simulated");
     let sets = [
         "eval.trials=4",
         "eval.envs=4",
@@ -355,7 +351,6 @@ fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them(
         "object_density",
         "ball_inertia",
         "object_angular_damping",
-        "reference_ball",
     ] {
         let mut m = meta.clone();
         m["train"].as_object_mut().unwrap().remove(key);
@@ -366,4 +361,100 @@ fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them(
         eprintln!("mean SM per trial: as trained {a:?}, without {key} {b:?}");
         assert_ne!(a, b, "{key}");
     }
+}
+
+#[test]
+fn a_policy_trained_against_simulated_ball_flights_is_evaluated_against_the_same() {
+    // `train.reference_ball = "simulated"` travels in policy.meta.json with
+    // the flights training solved; evaluation solves them again, scores
+    // against them (taking the setting out gives other trials: the policy
+    // observes its reference) and refuses a description whose flights are
+    // missing or differ, naming the clip
+    let (dir, run, pol) = df_policy(&[
+        "train.residual_action=true",
+        "train.reference_obs=true",
+        "train.reference_ball=simulated",
+    ]);
+    let from = run.to_str().unwrap();
+    let meta_path = pol.join("policy.meta.json");
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&meta_path).unwrap()).unwrap();
+    assert_eq!(meta["train"]["reference_ball"], "simulated");
+    let flights = meta["reference_flights"].as_array().unwrap();
+    let found: Vec<(&str, u64, u64)> = flights
+        .iter()
+        .map(|f| {
+            (
+                f["clip"].as_str().unwrap(),
+                f["release"].as_u64().unwrap(),
+                f["catch"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        found,
+        vec![
+            ("013_018pickle_run2_5", 3, 14),
+            ("013_018pickle_run2_5", 56, 72),
+            ("013_018pickle_run_4", 13, 34)
+        ]
+    );
+    let sets = [
+        "eval.trials=4",
+        "eval.envs=4",
+        "eval.steps=40",
+        "eval.metrics=[\"sr\"]",
+    ];
+    let mean_sm = |out: &std::path::Path| -> Vec<f64> {
+        let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
+        prim::<arrow::datatypes::Float64Type>(&t.batches[0], "mean_sm")
+            .values()
+            .to_vec()
+    };
+    let as_trained = dir.path().join("ev-sim");
+    eval(from, &pol, &as_trained, &sets);
+    let write =
+        |m: &serde_json::Value| std::fs::write(&meta_path, serde_json::to_vec(m).unwrap()).unwrap();
+    // the captured reference: other trials
+    let mut captured = meta.clone();
+    captured["train"]
+        .as_object_mut()
+        .unwrap()
+        .remove("reference_ball");
+    write(&captured);
+    let other = dir.path().join("ev-captured");
+    eval(from, &pol, &other, &sets);
+    assert_ne!(mean_sm(&as_trained), mean_sm(&other));
+    // a release velocity that is not the one solved now: refused, nothing written
+    let mut moved = meta.clone();
+    moved["reference_flights"][2]["v_sim"][0] = serde_json::json!(0.5);
+    write(&moved);
+    let out = dir.path().join("ev-moved");
+    let mut a = vec![
+        "eval",
+        "--from",
+        from,
+        "--policy",
+        pol.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    for kv in &sets {
+        a.extend_from_slice(&["--set", kv]);
+    }
+    let err = fails(&a);
+    assert!(
+        err.contains("simulated ball flights come out otherwise")
+            && err.contains("013_018pickle_run_4")
+            && err.contains("policy.meta.json"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    // no flights in the description: refused
+    let mut none = meta.clone();
+    none.as_object_mut().unwrap().remove("reference_flights");
+    write(&none);
+    let err = fails(&a);
+    assert!(err.contains("holds no reference_flights"), "{err}");
+    assert!(!out.exists());
 }

@@ -1756,6 +1756,8 @@ fn a_simulated_reference_ball_replaces_the_clips_flights_in_training() {
             a.body_pos, b.body_pos,
             "clip {c}: the humanoid is the clip's"
         );
+        assert_eq!(a.root_pos, b.root_pos);
+        assert_eq!(a.joint_rot, b.joint_rot);
         assert_eq!(a.contact, b.contact);
         let flown = |i: usize| {
             simulated
@@ -1763,13 +1765,26 @@ fn a_simulated_reference_ball_replaces_the_clips_flights_in_training() {
                 .iter()
                 .any(|f| f.clip == c && f.release < i && i < f.catch)
         };
+        // the release frame keeps its position and gets the solved velocity
+        let released = |i: usize| {
+            simulated
+                .flights
+                .iter()
+                .any(|f| f.clip == c && f.release == i)
+        };
         for i in 0..a.frames {
             let p = |f: &skillaug::motion::clip::ClipFrames| f.obj_pos[i * 3..i * 3 + 3].to_vec();
+            let q = |f: &skillaug::motion::clip::ClipFrames| f.obj_rot[i * 4..i * 4 + 4].to_vec();
+            let v =
+                |f: &skillaug::motion::clip::ClipFrames| f.obj_linvel[i * 3..i * 3 + 3].to_vec();
             assert_eq!(p(a) != p(b), flown(i), "clip {c} frame {i}");
+            if !flown(i) {
+                assert_eq!(q(a), q(b), "clip {c} frame {i}");
+            }
+            assert_eq!(v(a) != v(b), flown(i) || released(i), "clip {c} frame {i}");
         }
     }
-    // the setting travels with the run, and a dataset without a ball is
-    // refused, naming it
+    // a dataset without a ball is refused, naming the setting
     let (_loco_dir, loco) = ingested("locomotion");
     let err = skillaug::rl::trainer::Setup::load(
         &loco,

@@ -909,6 +909,7 @@ mod tests {
             samples: 0,
             ranks: 1,
             push_feed_forward: Vec::new(),
+            reference_flights: Vec::new(),
         }
     }
 

@@ -831,6 +831,28 @@ pub struct PolicyMeta {
     /// adds as training did (empty when off; not written then).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub push_feed_forward: Vec<PushOffsetMeta>,
+    /// The ball flights of `train.reference_ball = "simulated"` as training
+    /// solved them; evaluation solves them again and refuses a policy
+    /// whose flights now come out otherwise (empty when captured; not
+    /// written then).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub reference_flights: Vec<FlightMeta>,
+}
+
+/// One simulated reference flight as `policy.meta.json` holds it
+/// ([`crate::sim::ball_path::Flight`] with the clip by name).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FlightMeta {
+    /// Clip name.
+    pub clip: String,
+    /// Release frame (the flight's first).
+    pub release: usize,
+    /// Catch frame.
+    pub catch: usize,
+    /// The solved release velocity, m/s.
+    pub v_sim: [f64; 3],
+    /// Whether the flight replaced the clip's ball.
+    pub applied: bool,
 }
 
 /// One push window's feed-forward offset as `policy.meta.json` holds it

@@ -371,7 +371,9 @@ pub fn ball_phase_lead(sim: (f32, f32), reference: (f32, f32), rest: f32) -> f64
 
 /// Object 0's height, m, and vertical velocity, m/s, in frame `f` of a
 /// clip (`frames`, at `fps` Hz), as [`ball_phase_lead`] reads a reference
-/// ball. The stored velocity is a backward difference, so on the first
+/// ball. The stored velocity is a backward difference (on the frames of a
+/// flight that `train.reference_ball = "simulated"` replaced, the
+/// simulated ball's own velocity), so on the first
 /// frame after a bounce it spans the floor contact and reads far too slow
 /// (DF `run`: +2.3 m/s between −5.8 and +4.5), which would make the
 /// reference's ball look near its apex; there, when the next frame

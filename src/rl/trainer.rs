@@ -66,7 +66,9 @@ pub struct Setup {
     /// "simulation"` (empty otherwise).
     pub seam_pool: crate::augment::seam::SeamPool,
     /// The ball flights `train.reference_ball = "simulated"` solved, one
-    /// per push window with a catch frame (empty when captured).
+    /// per flight of the trained clips
+    /// ([`crate::sim::ball_path::flight_frames`]), applied or not (empty
+    /// when captured).
     pub flights: Vec<crate::sim::ball_path::Flight>,
 }
 
@@ -148,23 +150,8 @@ impl Setup {
                 );
             }
         }
-        let mut objects = objects::load_all(&first.objects, &root)?;
-        objects::set_density(&mut objects, cfg.object_density.map(|d| d as f32));
-        if cfg.ball_inertia != objects::BallInertia::Solid
-            && !objects.iter().any(|o| o.sphere_mass_properties().is_some())
-        {
-            bail!(
-                "train.ball_inertia = \"shell\": the training clips' objects ({:?}) have no \
-                 ball; set it to \"solid\"",
-                first.objects
-            );
-        }
-        objects::set_ball_inertia(&mut objects, cfg.ball_inertia);
-        objects::set_angular_damping(&mut objects, cfg.object_angular_damping.map(|d| d as f32));
-        let sim = SimOptions {
-            pd_stiffness_scale: cfg.pd_stiffness_scale as f32,
-            ..SimOptions::for_fps(first.fps as f64)
-        };
+        let objects = training_objects(&first.objects, &root, cfg)?;
+        let sim = training_sim(first.fps as f64, cfg);
         let fps = first.fps as f64;
         let mut lib = lib;
         let flights = reference_flights(&mut lib, &clips, &model, &objects, &sim, cfg)?;
@@ -205,17 +192,54 @@ impl Setup {
     }
 }
 
-/// With `train.reference_ball = "simulated"`, replace the ball flights of
-/// the trained `clips` by simulated ones
-/// ([`crate::sim::ball_path::simulate_flights`], in the training physics,
-/// push windows as the push search finds them) and return them; nothing
-/// otherwise.
+/// The objects `names` (from the data root `root`) as training simulates
+/// them: with `cfg`'s `object_density`, `ball_inertia` and
+/// `object_angular_damping`.
 ///
 /// # Errors
-/// The setting on while the training clips have no ball, or none of
-/// their pushes has a catch frame to reach, naming `train.reference_ball`;
-/// as [`crate::sim::ball_path::simulate_flights`].
-fn reference_flights(
+/// An object that cannot be loaded; `train.ball_inertia = "shell"` without
+/// a ball among them.
+pub fn training_objects(
+    names: &[String],
+    root: &Path,
+    cfg: &TrainConfig,
+) -> Result<Vec<crate::sim::ObjectSpec>> {
+    let mut objects = objects::load_all(names, root)?;
+    objects::set_density(&mut objects, cfg.object_density.map(|d| d as f32));
+    if cfg.ball_inertia != objects::BallInertia::Solid
+        && !objects.iter().any(|o| o.sphere_mass_properties().is_some())
+    {
+        bail!(
+            "train.ball_inertia = \"shell\": the training clips' objects ({names:?}) have no \
+             ball; set it to \"solid\""
+        );
+    }
+    objects::set_ball_inertia(&mut objects, cfg.ball_inertia);
+    objects::set_angular_damping(&mut objects, cfg.object_angular_damping.map(|d| d as f32));
+    Ok(objects)
+}
+
+/// The simulation options training uses for clips at `fps` frames per
+/// second under `cfg` (its `pd_stiffness_scale`).
+pub fn training_sim(fps: f64, cfg: &TrainConfig) -> SimOptions {
+    SimOptions {
+        pd_stiffness_scale: cfg.pd_stiffness_scale as f32,
+        ..SimOptions::for_fps(fps)
+    }
+}
+
+/// With `train.reference_ball = "simulated"`, replace the ball flights of
+/// `clips` by simulated ones ([`crate::sim::ball_path::simulate_flights`]
+/// in the physics of `model`, `objects` and `sim`, a hand within the push
+/// search's 0.15 m holding the ball) and return them, applied or not;
+/// nothing otherwise.
+///
+/// # Errors
+/// The setting on while the clips have no ball, or none of their flights
+/// could be simulated (none found, or none solved with its one bounce),
+/// naming `train.reference_ball`; as
+/// [`crate::sim::ball_path::simulate_flights`].
+pub fn reference_flights(
     lib: &mut MotionLib,
     clips: &[usize],
     model: &Model,
@@ -246,12 +270,15 @@ fn reference_flights(
     };
     let radius = crate::sim::push::PushConfig::default().hand_radius;
     let flights = crate::sim::ball_path::simulate_flights(lib, clips, scene, radius)?;
-    if flights.is_empty() {
+    if !flights.iter().any(|f| f.applied) {
         bail!(
-            "train.reference_ball = \"simulated\": no push of the training clips ({}) has a \
-             frame where the hand meets the ball again after its bounce, so there is no flight \
-             to simulate; set it to \"captured\"",
-            names
+            "train.reference_ball = \"simulated\": no flight of the training clips ({}) could be \
+             simulated ({} found: a release from a hand, a bounce, the hand on the ball again; \
+             none solved within {} m with its one bounce), so the reference would stay the \
+             captured one; set it to \"captured\"",
+            names,
+            flights.len(),
+            crate::sim::ball_path::MISS_TOLERANCE
         );
     }
     Ok(flights)
@@ -1792,8 +1819,26 @@ impl<'a> Trainer<'a> {
                     offset: p.offset.clone(),
                 })
                 .collect(),
+            reference_flights: flight_meta(&s.flights, &s.lib),
         }
     }
+}
+
+/// `flights` as `policy.meta.json` holds them (clips by name in `lib`).
+pub fn flight_meta(
+    flights: &[crate::sim::ball_path::Flight],
+    lib: &MotionLib,
+) -> Vec<crate::rl::config::FlightMeta> {
+    flights
+        .iter()
+        .map(|f| crate::rl::config::FlightMeta {
+            clip: lib.clips[f.clip].name.clone(),
+            release: f.release,
+            catch: f.catch,
+            v_sim: f.v_sim,
+            applied: f.applied,
+        })
+        .collect()
 }
 
 /// ATS records as bytes: (clip u32, frame u32, reward f64) each.

@@ -24,7 +24,9 @@
 //! catch with that flight: positions, orientations, linear and angular
 //! velocities. The release frame keeps its position and orientation and
 //! gets the found velocity and no spin; the catch frame keeps the clip's
-//! ball. The humanoid's frames and the contact flags are untouched. A
+//! ball (so its orientation and spin jump back to the clip's there; the
+//! other frames keep the ingest's backward-difference velocities). The
+//! humanoid's frames and the contact flags are untouched. A
 //! flight that cannot be solved to within [`MISS_TOLERANCE`], or only
 //! without the clip's bounce, keeps the clip's ball.
 //!

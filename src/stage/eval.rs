@@ -43,6 +43,7 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         &tcfg,
         &meta.stf,
     )?;
+    check_flights(&meta, &setup, policy)?;
     let he = match he_dir {
         Some(dir) => {
             let dev = candle_core::Device::Cpu;
@@ -91,6 +92,70 @@ pub fn run(common: &Common, policy: &Path) -> Result<()> {
         println!(
             "wrote {}",
             common.args.out.join("eval_summary.parquet").display()
+        );
+    }
+    Ok(())
+}
+
+/// With `train.reference_ball = "simulated"`: the flights evaluation has
+/// just solved (`setup.flights`) must be those the policy was trained
+/// against (`meta.reference_flights`), frames, outcome and release
+/// velocity to 1e-9 m/s, so an evaluation never scores a policy against
+/// another reference than its training's.
+///
+/// # Errors
+/// A description without flights, or flights that differ, naming the
+/// policy's `policy.meta.json` and the clip.
+fn check_flights(
+    meta: &crate::rl::config::PolicyMeta,
+    setup: &Setup,
+    policy: &std::path::Path,
+) -> Result<()> {
+    if meta.train.reference_ball == crate::sim::ball_path::ReferenceBall::Captured {
+        return Ok(());
+    }
+    let mp = policy.join("policy.meta.json");
+    if meta.reference_flights.is_empty() {
+        anyhow::bail!(
+            "{}: train.reference_ball = \"simulated\" but the description holds no \
+             reference_flights (keep the file `skillaug train` wrote)",
+            mp.display()
+        );
+    }
+    let now = crate::rl::trainer::flight_meta(&setup.flights, &setup.lib);
+    let same = |a: &crate::rl::config::FlightMeta, b: &crate::rl::config::FlightMeta| {
+        a.clip == b.clip
+            && a.release == b.release
+            && a.catch == b.catch
+            && a.applied == b.applied
+            && a.v_sim
+                .iter()
+                .zip(&b.v_sim)
+                .all(|(x, y)| (x - y).abs() <= 1e-9)
+    };
+    if now.len() != meta.reference_flights.len()
+        || !now
+            .iter()
+            .zip(&meta.reference_flights)
+            .all(|(a, b)| same(a, b))
+    {
+        let first = now
+            .iter()
+            .zip(&meta.reference_flights)
+            .find(|(a, b)| !same(a, b))
+            .map_or(String::new(), |(a, b)| {
+                format!(
+                    ": clip `{}` frames {}..{}, trained {:?} m/s, now {:?} m/s",
+                    b.clip, b.release, b.catch, b.v_sim, a.v_sim
+                )
+            });
+        anyhow::bail!(
+            "{}: the reference's simulated ball flights come out otherwise than in training \
+             ({} now, {} trained{first}); evaluate with the data, physics and build the policy \
+             was trained with",
+            mp.display(),
+            now.len(),
+            meta.reference_flights.len()
         );
     }
     Ok(())

@@ -5,8 +5,8 @@
 //! N that Eq. 20 puts at the seam (`[sample-stf]` τ, N_max and rule). With
 //! `train.seam_leave_search_s` the clips are first cut where training
 //! leaves them, and `last` is that frame. With `train.reference_ball =
-//! "simulated"` the table is that of training's library, the ball's
-//! flights simulated ([`crate::sim::ball_path`]).
+//! "simulated"` the ball clips' flights are first simulated as training
+//! simulates them ([`crate::sim::ball_path`]).
 
 use super::Common;
 use crate::augment::{n_masked, seam};
@@ -17,21 +17,13 @@ pub fn run(common: &Common) -> Result<()> {
     let cfg: crate::rl::config::TrainConfig = common.settings("train")?;
     let stf: crate::augment::settings::StfConfig = common.settings("sample-stf")?;
     let (p, _) = stf.params()?;
-    let mut lib = if cfg.reference_ball == crate::sim::ball_path::ReferenceBall::Simulated {
-        // the ball's simulated flights can move the seams: take training's
-        // library (its trained clips cut as training cuts them)
-        crate::rl::trainer::Setup::load(
-            common.input_dir(),
-            common.args.data_root.as_deref(),
-            &cfg,
-            &stf,
-        )?
-        .lib
-    } else {
-        crate::table::load_library(common.input_dir())?
-    };
+    let input = common.input_dir();
+    let mut lib = crate::table::load_library(input)?;
     let fps = lib.clips.first().map_or(60.0, |c| c.fps as f64);
-    if cfg.seam_leave_search_s > 0.0 && cfg.reference_ball == Default::default() {
+    if cfg.reference_ball == crate::sim::ball_path::ReferenceBall::Simulated {
+        simulate_flights(&mut lib, common, &cfg)?;
+    }
+    if cfg.seam_leave_search_s > 0.0 {
         let all: Vec<usize> = (0..lib.clips.len()).collect();
         seam::cut_at_leave_frames(
             &mut lib,
@@ -65,6 +57,40 @@ pub fn run(common: &Common) -> Result<()> {
                 row.skill, row.name
             ),
         }
+    }
+    Ok(())
+}
+
+/// The ball clips of `lib` (object 0 the ball; every group of clips with
+/// the same objects in one world) with their flights simulated as
+/// training simulates them ([`crate::rl::trainer::reference_flights`]);
+/// clips without a ball keep theirs.
+///
+/// # Errors
+/// A model or object that cannot be loaded; ball clips none of whose
+/// flights could be simulated.
+fn simulate_flights(
+    lib: &mut crate::motion::MotionLib,
+    common: &Common,
+    cfg: &crate::rl::config::TrainConfig,
+) -> Result<()> {
+    use crate::rl::trainer::{reference_flights, training_objects, training_sim};
+    let root = crate::dataset::data_root(common.args.data_root.as_deref())?;
+    let model = crate::sim::mjcf::Model::for_skeleton(&root, lib.skeleton)?;
+    let mut groups: Vec<(Vec<String>, Vec<usize>)> = Vec::new();
+    for (c, row) in lib.clips.iter().enumerate() {
+        if row.objects.first().is_none_or(|o| o != "ball") {
+            continue;
+        }
+        match groups.iter_mut().find(|(o, _)| *o == row.objects) {
+            Some((_, clips)) => clips.push(c),
+            None => groups.push((row.objects.clone(), vec![c])),
+        }
+    }
+    for (names, clips) in groups {
+        let objects = training_objects(&names, &root, cfg)?;
+        let sim = training_sim(lib.clips[clips[0]].fps as f64, cfg);
+        reference_flights(lib, &clips, &model, &objects, &sim, cfg)?;
     }
     Ok(())
 }
