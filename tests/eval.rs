@@ -27,9 +27,37 @@ fn df_policy(sets: &[&str]) -> (tempfile::TempDir, std::path::PathBuf, std::path
     (dir, run, pol)
 }
 
-/// `skillaug eval` of policy `pol` on run `from` into `out` with `--set`
-/// overrides (each "key=value"); returns what it printed.
-fn eval(from: &str, pol: &std::path::Path, out: &std::path::Path, sets: &[&str]) -> String {
+/// The path of `pol`'s policy.meta.json and its contents.
+fn policy_meta(pol: &std::path::Path) -> (std::path::PathBuf, serde_json::Value) {
+    let path = pol.join("policy.meta.json");
+    let meta = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    (path, meta)
+}
+
+/// A short SR evaluation: 4 trials of 40 steps.
+const SHORT_SR: [&str; 4] = [
+    "eval.trials=4",
+    "eval.envs=4",
+    "eval.steps=40",
+    "eval.metrics=[\"sr\"]",
+];
+
+/// The mean SM reward per step of each trial in the evaluation folder `out`.
+fn mean_sm(out: &std::path::Path) -> Vec<f64> {
+    let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
+    prim::<arrow::datatypes::Float64Type>(&t.batches[0], "mean_sm")
+        .values()
+        .to_vec()
+}
+
+/// The arguments of `skillaug eval` of policy `pol` on run `from` into
+/// `out` with `--set` overrides (each "key=value").
+fn eval_args<'a>(
+    from: &'a str,
+    pol: &'a std::path::Path,
+    out: &'a std::path::Path,
+    sets: &[&'a str],
+) -> Vec<&'a str> {
     let mut a = vec![
         "eval",
         "--from",
@@ -42,7 +70,12 @@ fn eval(from: &str, pol: &std::path::Path, out: &std::path::Path, sets: &[&str])
     for kv in sets {
         a.extend_from_slice(&["--set", kv]);
     }
-    ok(&a)
+    a
+}
+
+/// [`eval_args`] run, required to succeed; returns what it printed.
+fn eval(from: &str, pol: &std::path::Path, out: &std::path::Path, sets: &[&str]) -> String {
+    ok(&eval_args(from, pol, out, sets))
 }
 
 #[test]
@@ -319,25 +352,12 @@ fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them(
         "train.object_angular_damping=10",
     ]);
     let from = run.to_str().unwrap();
-    let meta_path = pol.join("policy.meta.json");
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&meta_path).unwrap()).unwrap();
+    let (meta_path, meta) = policy_meta(&pol);
     assert_eq!(meta["train"]["pd_stiffness_scale"], 4.0);
     assert_eq!(meta["train"]["object_density"], 83.0);
     assert_eq!(meta["train"]["ball_inertia"], "shell");
     assert_eq!(meta["train"]["object_angular_damping"], 10.0);
-    let sets = [
-        "eval.trials=4",
-        "eval.envs=4",
-        "eval.steps=40",
-        "eval.metrics=[\"sr\"]",
-    ];
-    let mean_sm = |out: &std::path::Path| -> Vec<f64> {
-        let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
-        prim::<arrow::datatypes::Float64Type>(&t.batches[0], "mean_sm")
-            .values()
-            .to_vec()
-    };
+    let sets = SHORT_SR;
     let stiff = dir.path().join("ev-stiff");
     eval(from, &pol, &stiff, &sets);
     // the same evaluation again gives the same trials (so a difference
@@ -376,41 +396,21 @@ fn a_policy_trained_against_simulated_ball_flights_is_evaluated_against_the_same
         "train.reference_ball=simulated",
     ]);
     let from = run.to_str().unwrap();
-    let meta_path = pol.join("policy.meta.json");
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&meta_path).unwrap()).unwrap();
+    let (meta_path, meta) = policy_meta(&pol);
     assert_eq!(meta["train"]["reference_ball"], "simulated");
     let flights = meta["reference_flights"].as_array().unwrap();
-    let found: Vec<(&str, u64, u64)> = flights
+    let found: Vec<(&str, usize, usize)> = flights
         .iter()
         .map(|f| {
             (
                 f["clip"].as_str().unwrap(),
-                f["release"].as_u64().unwrap(),
-                f["catch"].as_u64().unwrap(),
+                f["release"].as_u64().unwrap() as usize,
+                f["catch"].as_u64().unwrap() as usize,
             )
         })
         .collect();
-    assert_eq!(
-        found,
-        vec![
-            ("013_018pickle_run2_5", 3, 14),
-            ("013_018pickle_run2_5", 56, 72),
-            ("013_018pickle_run_4", 13, 34)
-        ]
-    );
-    let sets = [
-        "eval.trials=4",
-        "eval.envs=4",
-        "eval.steps=40",
-        "eval.metrics=[\"sr\"]",
-    ];
-    let mean_sm = |out: &std::path::Path| -> Vec<f64> {
-        let t = skillaug::table::io::read_parquet(&out.join("eval_trials.parquet")).unwrap();
-        prim::<arrow::datatypes::Float64Type>(&t.batches[0], "mean_sm")
-            .values()
-            .to_vec()
-    };
+    assert_eq!(found, DF_FLIGHTS);
+    let sets = SHORT_SR;
     let as_trained = dir.path().join("ev-sim");
     eval(from, &pol, &as_trained, &sets);
     let write =
@@ -430,18 +430,7 @@ fn a_policy_trained_against_simulated_ball_flights_is_evaluated_against_the_same
     moved["reference_flights"][2]["v_sim"][0] = serde_json::json!(0.5);
     write(&moved);
     let out = dir.path().join("ev-moved");
-    let mut a = vec![
-        "eval",
-        "--from",
-        from,
-        "--policy",
-        pol.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ];
-    for kv in &sets {
-        a.extend_from_slice(&["--set", kv]);
-    }
+    let a = eval_args(from, &pol, &out, &sets);
     let err = fails(&a);
     assert!(
         err.contains("simulated ball flights come out otherwise")

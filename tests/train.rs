@@ -1738,14 +1738,7 @@ fn a_simulated_reference_ball_replaces_the_clips_flights_in_training() {
             )
         })
         .collect();
-    assert_eq!(
-        found,
-        vec![
-            ("013_018pickle_run2_5", 3, 14),
-            ("013_018pickle_run2_5", 56, 72),
-            ("013_018pickle_run_4", 13, 34)
-        ]
-    );
+    assert_eq!(found, DF_FLIGHTS);
     assert!(simulated
         .flights
         .iter()

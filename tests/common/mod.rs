@@ -46,6 +46,15 @@ pub fn kill_when(args: &[&str], ready: impl Fn() -> bool, limit_s: u64, what: &s
     child.wait().unwrap();
 }
 
+/// The ball flights of BallPlay's DF clips (clip, release frame, catch
+/// frame) that `train.reference_ball = "simulated"` replaces
+/// (`skillaug::sim::ball_path::flight_frames`).
+pub const DF_FLIGHTS: [(&str, usize, usize); 3] = [
+    ("013_018pickle_run2_5", 3, 14),
+    ("013_018pickle_run2_5", 56, 72),
+    ("013_018pickle_run_4", 13, 34),
+];
+
 /// `--set` flags of a tiny training run: 4 environments x 8 steps, one
 /// 16-unit hidden layer.
 pub const TINY_TRAIN: &[&str] = &[
