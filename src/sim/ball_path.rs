@@ -223,6 +223,9 @@ fn solve(
     away.root_angvel = [0.0; 3];
     away.joint_vel.fill(0.0);
     let frames = catch - release;
+    // the humanoid stays put, away and still, for every flight
+    world.set_state(&away)?;
+    world.humanoid_kinematic(true);
     let mut fly = |v: [f64; 3]| -> Result<Flown> {
         let mut s = away.clone();
         for (o, x) in s.obj_linvel.iter_mut().zip(v) {
@@ -230,24 +233,17 @@ fn solve(
         }
         s.obj_angvel[..3].fill(0.0);
         world.set_state(&s)?;
-        world.humanoid_kinematic(true);
-        let mut states = Vec::with_capacity(frames);
-        states.push(world.get_state());
-        for _ in 1..frames {
+        // frames release..=catch, one step apart
+        let mut states = vec![world.get_state()];
+        for _ in 0..frames {
             world.step();
             states.push(world.get_state());
         }
-        world.step();
-        let end = world.get_state();
-        world.humanoid_kinematic(false);
         let bounces = states
-            .iter()
-            .chain(std::iter::once(&end))
-            .map(|s| s.obj_linvel[2])
-            .collect::<Vec<_>>()
             .windows(2)
-            .filter(|w| w[0] < 0.0 && w[1] > 0.0)
+            .filter(|w| w[0].obj_linvel[2] < 0.0 && w[1].obj_linvel[2] > 0.0)
             .count();
+        let end = states.pop().expect("the catch frame's state");
         Ok(Flown {
             states,
             at_catch: std::array::from_fn(|k| end.obj_pos[k] as f64),

@@ -133,22 +133,17 @@ fn check_flights(
                 .zip(&b.v_sim)
                 .all(|(x, y)| (x - y).abs() <= 1e-9)
     };
-    if now.len() != meta.reference_flights.len()
-        || !now
-            .iter()
-            .zip(&meta.reference_flights)
-            .all(|(a, b)| same(a, b))
-    {
-        let first = now
-            .iter()
-            .zip(&meta.reference_flights)
-            .find(|(a, b)| !same(a, b))
-            .map_or(String::new(), |(a, b)| {
-                format!(
-                    ": clip `{}` frames {}..{}, trained {:?} m/s, now {:?} m/s",
-                    b.clip, b.release, b.catch, b.v_sim, a.v_sim
-                )
-            });
+    let differs = now
+        .iter()
+        .zip(&meta.reference_flights)
+        .find(|(a, b)| !same(a, b));
+    if now.len() != meta.reference_flights.len() || differs.is_some() {
+        let first = differs.map_or(String::new(), |(a, b)| {
+            format!(
+                ": clip `{}` frames {}..{}, trained {:?} m/s, now {:?} m/s",
+                b.clip, b.release, b.catch, b.v_sim, a.v_sim
+            )
+        });
         anyhow::bail!(
             "{}: the reference's simulated ball flights come out otherwise than in training \
              ({} now, {} trained{first}); evaluate with the data, physics and build the policy \
