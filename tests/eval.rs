@@ -447,3 +447,30 @@ fn a_policy_trained_against_simulated_ball_flights_is_evaluated_against_the_same
     assert!(err.contains("holds no reference_flights"), "{err}");
     assert!(!out.exists());
 }
+
+#[test]
+fn a_policy_trained_with_the_hand_on_its_ball_is_evaluated_against_the_same_reference() {
+    // `train.reference_hand = "on-ball"` travels in policy.meta.json and
+    // evaluation repairs the reference as training did: taking the setting
+    // out of the description gives other trials (the policy observes its
+    // reference)
+    let (dir, run, pol) = df_policy(&[
+        "train.residual_action=true",
+        "train.reference_obs=true",
+        "train.reference_hand=on-ball",
+    ]);
+    let from = run.to_str().unwrap();
+    let (meta_path, meta) = policy_meta(&pol);
+    assert_eq!(meta["train"]["reference_hand"], "on-ball");
+    let as_trained = dir.path().join("ev-on-ball");
+    eval(from, &pol, &as_trained, &SHORT_SR);
+    let mut captured = meta.clone();
+    captured["train"]
+        .as_object_mut()
+        .unwrap()
+        .remove("reference_hand");
+    std::fs::write(&meta_path, serde_json::to_vec(&captured).unwrap()).unwrap();
+    let other = dir.path().join("ev-captured");
+    eval(from, &pol, &other, &SHORT_SR);
+    assert_ne!(mean_sm(&as_trained), mean_sm(&other));
+}

@@ -147,6 +147,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.object_angular_damping=10",
             "--set",
             "train.reference_ball=simulated",
+            "--set",
+            "train.reference_hand=on-ball",
         ],
     );
 }
@@ -1792,6 +1794,82 @@ fn a_simulated_reference_ball_replaces_the_clips_flights_in_training() {
     .expect("refused");
     assert!(
         format!("{err:#}").contains("train.reference_ball = \"simulated\": the training clips"),
+        "{err:#}"
+    );
+}
+
+#[test]
+fn a_reference_hand_on_its_ball_changes_only_the_arms_and_chest_of_the_push_windows() {
+    // `train.reference_hand = "on-ball"`: training's set-up repairs DF's
+    // three push windows (run2's and run's) and nothing else of the
+    // reference: root, ball and contact flags stay the clip's; a dataset
+    // without a ball is refused, naming the setting
+    use skillaug::sim::hand_path::ReferenceHand;
+    let (_dir, run) = ingested("ballplay");
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        ..TrainConfig::default()
+    };
+    let captured = setup_for(&run, &base);
+    assert!(captured.hands.is_empty());
+    let on = setup_for(
+        &run,
+        &TrainConfig {
+            reference_hand: ReferenceHand::OnBall,
+            ..base.clone()
+        },
+    );
+    let found: Vec<(&str, usize, usize)> = on
+        .hands
+        .iter()
+        .map(|h| (on.lib.clips[h.clip].name.as_str(), h.start, h.release))
+        .collect();
+    assert_eq!(
+        found,
+        [
+            ("013_018pickle_run2_5", 41, 56),
+            ("013_018pickle_run_4", 2, 13),
+            ("013_018pickle_run_4", 50, 63)
+        ]
+    );
+    for c in 0..captured.lib.clips.len() {
+        let (a, b) = (&captured.lib.frames[c], &on.lib.frames[c]);
+        assert_eq!(a.root_pos, b.root_pos, "clip {c}");
+        assert_eq!(a.obj_pos, b.obj_pos, "clip {c}");
+        assert_eq!(a.contact, b.contact, "clip {c}");
+        let repaired = on.hands.iter().any(|h| h.clip == c);
+        assert_eq!(a.joint_rot != b.joint_rot, repaired, "clip {c}");
+        // the joints solved (joint j drives body j + 1): the chest (body
+        // 12) and each side's thorax, shoulder, elbow and wrist (bodies
+        // 15-18 and 34-37 of the 53)
+        let solved = [11, 14, 15, 16, 17, 33, 34, 35, 36];
+        for i in 0..a.frames {
+            for j in 0..a.n_joints {
+                let k = (i * a.n_joints + j) * 3;
+                if !solved.contains(&j) {
+                    assert_eq!(
+                        a.joint_rot[k..k + 3],
+                        b.joint_rot[k..k + 3],
+                        "clip {c} frame {i} joint {j}"
+                    );
+                }
+            }
+        }
+    }
+    let (_loco_dir, loco) = ingested("locomotion");
+    let err = skillaug::rl::trainer::Setup::load(
+        &loco,
+        Some(&data_root()),
+        &TrainConfig {
+            reference_hand: ReferenceHand::OnBall,
+            ..TrainConfig::default()
+        },
+        &skillaug::augment::settings::StfConfig::default(),
+    )
+    .err()
+    .expect("refused");
+    assert!(
+        format!("{err:#}").contains("train.reference_hand = \"on-ball\": the training clips"),
         "{err:#}"
     );
 }

@@ -386,10 +386,22 @@ pub struct TrainConfig {
     /// when captured.
     #[serde(skip_serializing_if = "is_captured")]
     pub reference_ball: crate::sim::ball_path::ReferenceBall,
+    /// The hand the training reference follows while it pushes the ball:
+    /// `"captured"` (the clip's) or `"on-ball"`, the pushing hand put on
+    /// top of its ball and kept there while the ball speeds up, by
+    /// inverse kinematics of the arm and chest ([`crate::sim::hand_path`]),
+    /// in training and in the evaluation of the policy. Not in the paper
+    /// or the reference code. Not written when captured.
+    #[serde(skip_serializing_if = "is_captured_hand")]
+    pub reference_hand: crate::sim::hand_path::ReferenceHand,
 }
 
 fn is_captured(b: &crate::sim::ball_path::ReferenceBall) -> bool {
     *b == crate::sim::ball_path::ReferenceBall::Captured
+}
+
+fn is_captured_hand(h: &crate::sim::hand_path::ReferenceHand) -> bool {
+    *h == crate::sim::hand_path::ReferenceHand::Captured
 }
 
 fn is_ball_objective(o: &crate::sim::push::PushObjective) -> bool {
@@ -587,6 +599,7 @@ impl Default for TrainConfig {
             ball_inertia: crate::sim::objects::BallInertia::Solid,
             object_angular_damping: None,
             reference_ball: crate::sim::ball_path::ReferenceBall::Captured,
+            reference_hand: crate::sim::hand_path::ReferenceHand::Captured,
         }
     }
 }

@@ -70,6 +70,9 @@ pub struct Setup {
     /// ([`crate::sim::ball_path::flight_frames`]), applied or not (empty
     /// when captured).
     pub flights: Vec<crate::sim::ball_path::Flight>,
+    /// The push windows whose hand `train.reference_hand = "on-ball"` put
+    /// on top of the ball, in clip and frame order (empty when captured).
+    pub hands: Vec<crate::sim::hand_path::HandRepair>,
 }
 
 impl Setup {
@@ -154,6 +157,7 @@ impl Setup {
         let sim = training_sim(first.fps as f64, cfg);
         let fps = first.fps as f64;
         let mut lib = lib;
+        let hands = reference_hands(&mut lib, &clips, &model, &objects, cfg)?;
         let flights = reference_flights(&mut lib, &clips, &model, &objects, &sim, cfg)?;
         let (lib, edges) = if cfg.seam_leave_search_s > 0.0 {
             leave_early(lib, edges, &clips, cfg, fps)
@@ -169,6 +173,7 @@ impl Setup {
         Ok(Setup {
             seams,
             seam_pool,
+            hands,
             flights,
             fk: stf_cfg.fk,
             lib,
@@ -226,6 +231,61 @@ pub fn training_sim(fps: f64, cfg: &TrainConfig) -> SimOptions {
         pd_stiffness_scale: cfg.pd_stiffness_scale as f32,
         ..SimOptions::for_fps(fps)
     }
+}
+
+/// With `train.reference_hand = "on-ball"`, put the pushing hand of every
+/// push window of `clips` on top of its ball
+/// ([`crate::sim::hand_path::repair_hands`], the push search's window
+/// settings) and return the windows repaired; nothing otherwise.
+///
+/// # Errors
+/// The setting on while the clips have no ball or no push window, naming
+/// `train.reference_hand`; as [`crate::sim::hand_path::repair_hands`].
+pub fn reference_hands(
+    lib: &mut MotionLib,
+    clips: &[usize],
+    model: &Model,
+    objects: &[crate::sim::ObjectSpec],
+    cfg: &TrainConfig,
+) -> Result<Vec<crate::sim::hand_path::HandRepair>> {
+    use crate::sim::hand_path::{repair_hands, ReferenceHand, BLEND_S};
+    if cfg.reference_hand == ReferenceHand::Captured {
+        return Ok(Vec::new());
+    }
+    let names = |lib: &MotionLib| {
+        clips
+            .iter()
+            .map(|&c| lib.clips[c].name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    if objects.first().is_none_or(|o| o.name != "ball") {
+        bail!(
+            "train.reference_hand = \"on-ball\": the training clips ({}) have no ball; set it \
+             to \"captured\"",
+            names(lib)
+        );
+    }
+    let push = crate::sim::push::PushConfig::default();
+    let hands = repair_hands(
+        lib,
+        clips,
+        model,
+        push.hand_radius,
+        push.min_frames,
+        BLEND_S,
+    )?;
+    if hands.is_empty() {
+        bail!(
+            "train.reference_hand = \"on-ball\": no push window in the training clips ({}) (a \
+             ball descending with a hand body within {} m of it for {} frames), so the \
+             reference would stay the captured one; set it to \"captured\"",
+            names(lib),
+            push.hand_radius,
+            push.min_frames
+        );
+    }
+    Ok(hands)
 }
 
 /// With `train.reference_ball = "simulated"`, replace the ball flights of
@@ -1457,6 +1517,12 @@ impl<'a> Trainer<'a> {
         }
         if let Some(d) = cfg.object_angular_damping {
             on.push(format!("object_angular_damping={d} 1/s"));
+        }
+        if cfg.reference_hand != crate::sim::hand_path::ReferenceHand::Captured {
+            on.push(format!(
+                "reference_hand={} (the pushing hand on top of its ball)",
+                cfg.reference_hand.name()
+            ));
         }
         if cfg.reference_ball != crate::sim::ball_path::ReferenceBall::Captured {
             on.push(format!(

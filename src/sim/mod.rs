@@ -6,6 +6,7 @@
 pub mod ball_path;
 pub mod bench;
 pub mod checks;
+pub mod hand_path;
 pub mod mjcf;
 pub mod objects;
 pub mod push;

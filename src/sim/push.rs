@@ -94,6 +94,10 @@ pub struct PushConfig {
     /// (`check-ball.reward_weights = { opv = 0.5 }`, as
     /// `train.reward_weights`); none by default: the paper's Table 8.
     pub reward_weights: WeightOverrides,
+    /// The hand the replays and the search start from and track:
+    /// `"captured"` (the clip's) or `"on-ball"`, the pushing hand moved
+    /// with its ball ([`super::hand_path`], as `train.reference_hand`).
+    pub reference_hand: super::hand_path::ReferenceHand,
 }
 
 /// What a push search optimises ([`PushConfig::objective`]).
@@ -136,6 +140,7 @@ impl Default for PushConfig {
             objective: PushObjective::Ball,
             sm_frames: 40,
             reward_weights: WeightOverrides::default(),
+            reference_hand: super::hand_path::ReferenceHand::Captured,
         }
     }
 }

@@ -15,6 +15,12 @@
 //! clip, of the PD replay of its own targets and of the two searches, with
 //! the size of the offsets found.
 //!
+//! With `--set 'check-ball.reference_hand="on-ball"'` every ball clip's
+//! pushing hand is first put on top of its ball as `train.reference_hand`
+//! does ([`crate::sim::hand_path`]); the command prints each push window's
+//! repair (the body held, the largest shift, the inverse kinematics'
+//! residual), and the replays and the search run on the repaired clips.
+//!
 //! `--set check-ball.physics.KEY=VALUE` runs both under other physics
 //! ([`crate::sim::checks::ReplayPhysics`]: more physics steps or solver
 //! iterations, scaled PD gains, another object density, a ball with a
@@ -24,6 +30,7 @@
 
 use super::Common;
 use crate::sim::checks::ball_replays;
+use crate::sim::hand_path::{repair_hands, ReferenceHand, BLEND_S};
 use crate::sim::mjcf::Model;
 use crate::sim::push::{fit_pushes, PushConfig, PushSearch};
 use anyhow::{bail, Result};
@@ -35,9 +42,38 @@ fn opt(x: Option<f64>) -> String {
 /// Run the command: print the table (and the push search's, when on).
 pub fn run(common: &Common) -> Result<()> {
     let cfg: PushConfig = common.settings("check-ball")?;
-    let lib = crate::table::load_library(common.input_dir())?;
+    let mut lib = crate::table::load_library(common.input_dir())?;
     let root = crate::dataset::data_root(common.args.data_root.as_deref())?;
     let model = Model::for_skeleton(&root, lib.skeleton)?;
+    if cfg.reference_hand == ReferenceHand::OnBall {
+        let clips: Vec<usize> = (0..lib.clips.len()).collect();
+        let repairs = repair_hands(
+            &mut lib,
+            &clips,
+            &model,
+            cfg.hand_radius,
+            cfg.min_frames,
+            BLEND_S,
+        )?;
+        println!("reference_hand = \"on-ball\": each push window's hand moved with its ball");
+        println!(
+            "{:<34} {:>9}  {:>4}  {:>10}  {:>15}  {:>11}",
+            "clip", "frames", "hand", "body", "largest shift m", "residual m"
+        );
+        for r in &repairs {
+            println!(
+                "{:<34} {:>4}-{:<4}  {:>4}  {:>10}  {:>15.3}  {:>11.4}",
+                lib.clips[r.clip].name,
+                r.start,
+                r.release,
+                r.side,
+                model.bodies[r.body].name,
+                r.shift,
+                r.residual
+            );
+        }
+        println!();
+    }
     let found = ball_replays(&lib, &model, &root, &cfg.physics)?;
     if found.is_empty() {
         bail!(

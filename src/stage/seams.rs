@@ -4,9 +4,11 @@
 //! (root x, y and heading aligned), the similarity β and the masked states
 //! N that Eq. 20 puts at the seam (`[sample-stf]` τ, N_max and rule). With
 //! `train.seam_leave_search_s` the clips are first cut where training
-//! leaves them, and `last` is that frame. With `train.reference_ball =
-//! "simulated"` the ball clips' flights are first simulated as training
-//! simulates them ([`crate::sim::ball_path`]).
+//! leaves them, and `last` is that frame. With `train.reference_hand =
+//! "on-ball"` the ball clips' pushing hands are first put on their ball
+//! ([`crate::sim::hand_path`]), and with `train.reference_ball =
+//! "simulated"` their flights simulated ([`crate::sim::ball_path`]), as
+//! training does.
 
 use super::Common;
 use crate::augment::{n_masked, seam};
@@ -20,8 +22,10 @@ pub fn run(common: &Common) -> Result<()> {
     let input = common.input_dir();
     let mut lib = crate::table::load_library(input)?;
     let fps = lib.clips.first().map_or(60.0, |c| c.fps as f64);
-    if cfg.reference_ball == crate::sim::ball_path::ReferenceBall::Simulated {
-        simulate_flights(&mut lib, common, &cfg)?;
+    if cfg.reference_ball == crate::sim::ball_path::ReferenceBall::Simulated
+        || cfg.reference_hand == crate::sim::hand_path::ReferenceHand::OnBall
+    {
+        repair_ball_clips(&mut lib, common, &cfg)?;
     }
     if cfg.seam_leave_search_s > 0.0 {
         let all: Vec<usize> = (0..lib.clips.len()).collect();
@@ -62,19 +66,21 @@ pub fn run(common: &Common) -> Result<()> {
 }
 
 /// The ball clips of `lib` (object 0 the ball; every group of clips with
-/// the same objects in one world) with their flights simulated as
-/// training simulates them ([`crate::rl::trainer::reference_flights`]);
-/// clips without a ball keep theirs.
+/// the same objects in one world) with their pushing hands and their
+/// flights changed as training changes them
+/// ([`crate::rl::trainer::reference_hands`], then
+/// [`crate::rl::trainer::reference_flights`]; each only when its setting
+/// is on); clips without a ball keep theirs.
 ///
 /// # Errors
-/// A model or object that cannot be loaded; ball clips none of whose
-/// flights could be simulated.
-fn simulate_flights(
+/// A model or object that cannot be loaded; ball clips without a push
+/// window, or none of whose flights could be simulated.
+fn repair_ball_clips(
     lib: &mut crate::motion::MotionLib,
     common: &Common,
     cfg: &crate::rl::config::TrainConfig,
 ) -> Result<()> {
-    use crate::rl::trainer::{reference_flights, training_objects, training_sim};
+    use crate::rl::trainer::{reference_flights, reference_hands, training_objects, training_sim};
     let root = crate::dataset::data_root(common.args.data_root.as_deref())?;
     let model = crate::sim::mjcf::Model::for_skeleton(&root, lib.skeleton)?;
     let mut groups: Vec<(Vec<String>, Vec<usize>)> = Vec::new();
@@ -90,6 +96,7 @@ fn simulate_flights(
     for (names, clips) in groups {
         let objects = training_objects(&names, &root, cfg)?;
         let sim = training_sim(lib.clips[clips[0]].fps as f64, cfg);
+        reference_hands(lib, &clips, &model, &objects, cfg)?;
         reference_flights(lib, &clips, &model, &objects, &sim, cfg)?;
     }
     Ok(())
