@@ -416,15 +416,13 @@ fn a_policy_trained_against_simulated_ball_flights_is_evaluated_against_the_same
     let write =
         |m: &serde_json::Value| std::fs::write(&meta_path, serde_json::to_vec(m).unwrap()).unwrap();
     // the captured reference: other trials
-    let mut captured = meta.clone();
-    captured["train"]
-        .as_object_mut()
-        .unwrap()
-        .remove("reference_ball");
-    write(&captured);
-    let other = dir.path().join("ev-captured");
-    eval(from, &pol, &other, &sets);
-    assert_ne!(mean_sm(&as_trained), mean_sm(&other));
+    let other = eval_without(
+        from,
+        &pol,
+        "reference_ball",
+        &dir.path().join("ev-captured"),
+    );
+    assert_ne!(mean_sm(&as_trained), other);
     // a release velocity that is not the one solved now: refused, nothing written
     let mut moved = meta.clone();
     moved["reference_flights"][2]["v_sim"][0] = serde_json::json!(0.5);
@@ -460,17 +458,26 @@ fn a_policy_trained_with_the_hand_on_its_ball_is_evaluated_against_the_same_refe
         "train.reference_hand=on-ball",
     ]);
     let from = run.to_str().unwrap();
-    let (meta_path, meta) = policy_meta(&pol);
+    let (_, meta) = policy_meta(&pol);
     assert_eq!(meta["train"]["reference_hand"], "on-ball");
     let as_trained = dir.path().join("ev-on-ball");
     eval(from, &pol, &as_trained, &SHORT_SR);
-    let mut captured = meta.clone();
-    captured["train"]
-        .as_object_mut()
-        .unwrap()
-        .remove("reference_hand");
-    std::fs::write(&meta_path, serde_json::to_vec(&captured).unwrap()).unwrap();
-    let other = dir.path().join("ev-captured");
-    eval(from, &pol, &other, &SHORT_SR);
-    assert_ne!(mean_sm(&as_trained), mean_sm(&other));
+    let other = eval_without(
+        from,
+        &pol,
+        "reference_hand",
+        &dir.path().join("ev-captured"),
+    );
+    assert_ne!(mean_sm(&as_trained), other);
+}
+
+/// The mean SM per trial of the short SR evaluation of `pol` on run
+/// `from` into `out`, with `key` taken out of the description's training
+/// settings (its default then applies); the description is left so.
+fn eval_without(from: &str, pol: &std::path::Path, key: &str, out: &std::path::Path) -> Vec<f64> {
+    let (meta_path, mut meta) = policy_meta(pol);
+    meta["train"].as_object_mut().unwrap().remove(key);
+    std::fs::write(&meta_path, serde_json::to_vec(&meta).unwrap()).unwrap();
+    eval(from, pol, out, &SHORT_SR);
+    mean_sm(out)
 }

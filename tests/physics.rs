@@ -508,13 +508,8 @@ fn a_ball_replayed_under_the_clips_motion_falls_and_bounces_as_the_clips_does() 
     }
     let (_d2, run) = ingested("ballplay");
     let out = run.join("x");
-    let text = ok(&[
-        "check-ball",
-        "--from",
-        run.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (run, out) = (run.to_str().unwrap(), out.to_str().unwrap());
+    let text = ok(&check_ball_args(run, out, &[]));
     assert_eq!(
         text.lines().filter(|l| l.contains("pickle")).count(),
         6,
@@ -522,15 +517,11 @@ fn a_ball_replayed_under_the_clips_motion_falls_and_bounces_as_the_clips_does() 
     );
     // with the pushing hands on their ball: a line per push window (12)
     // before the six replays, DF `run`'s kinematic one now higher
-    let on_ball = ok(&[
-        "check-ball",
-        "--from",
-        run.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--set",
-        "check-ball.reference_hand=\"on-ball\"",
-    ]);
+    let on_ball = ok(&check_ball_args(
+        run,
+        out,
+        &["check-ball.reference_hand=\"on-ball\""],
+    ));
     assert!(
         on_ball.contains("reference_hand = \"on-ball\""),
         "{on_ball}"
@@ -718,6 +709,16 @@ fn a_reference_hand_on_its_ball_stays_on_top_of_it_and_pushes_it_when_kinematic(
         repaired > clip + 0.3,
         "kinematic apex after the first bounce: {repaired} m against the clip's motion's {clip} m"
     );
+}
+
+/// The arguments of `skillaug check-ball` on the run folder `run`, output
+/// folder `out`, with each of `sets` ("key=value") as a `--set`.
+fn check_ball_args<'a>(run: &'a str, out: &'a str, sets: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec!["check-ball", "--from", run, "--out", out];
+    for kv in sets {
+        a.extend(["--set", kv]);
+    }
+    a
 }
 
 /// The DF clip `run` of BallPlay (it pushes its ball down from frame 2):
@@ -1033,19 +1034,15 @@ fn a_push_search_finds_targets_that_push_harder_than_the_clips_own() {
 
     let (_d2, run) = ingested("ballplay");
     let out = run.join("x");
-    let base = [
-        "check-ball",
-        "--from",
+    let base = check_ball_args(
         run.to_str().unwrap(),
-        "--out",
         out.to_str().unwrap(),
-        "--set",
-        "check-ball.push_search=true",
-        "--set",
-        "check-ball.population=4",
-        "--set",
-        "check-ball.iterations=1",
-    ];
+        &[
+            "check-ball.push_search=true",
+            "check-ball.population=4",
+            "check-ball.iterations=1",
+        ],
+    );
     let mut args = base.to_vec();
     args.extend(["--set", "check-ball.elites=2"]);
     let text = ok(&args);

@@ -1715,20 +1715,8 @@ fn a_simulated_reference_ball_replaces_the_clips_flights_in_training() {
     // library training samples and scores against has DF's three flights
     // (run2 3..14 and 56..72, run 13..34) replaced by simulated ones that
     // reach the clips' catches, and nothing else changed
-    let (_dir, run) = ingested("ballplay");
-    let base = TrainConfig {
-        skills: vec!["run".into()],
-        ..TrainConfig::default()
-    };
-    let captured = setup_for(&run, &base);
+    let (_dir, captured, simulated) = df_setups(|c| c.reference_ball = ReferenceBall::Simulated);
     assert!(captured.flights.is_empty());
-    let simulated = setup_for(
-        &run,
-        &TrainConfig {
-            reference_ball: ReferenceBall::Simulated,
-            ..base.clone()
-        },
-    );
     let found: Vec<(&str, usize, usize)> = simulated
         .flights
         .iter()
@@ -1780,22 +1768,48 @@ fn a_simulated_reference_ball_replaces_the_clips_flights_in_training() {
         }
     }
     // a dataset without a ball is refused, naming the setting
-    let (_loco_dir, loco) = ingested("locomotion");
+    let err = refused_without_a_ball(|c| c.reference_ball = ReferenceBall::Simulated);
+    assert!(
+        err.contains("train.reference_ball = \"simulated\": the training clips"),
+        "{err}"
+    );
+}
+
+/// Training's set-up of BallPlay's DF clips (skill `run`) with the
+/// default settings and with `change` made to them: the temporary folder
+/// holding the ingested run, then both set-ups.
+fn df_setups(
+    change: impl FnOnce(&mut TrainConfig),
+) -> (
+    tempfile::TempDir,
+    skillaug::rl::trainer::Setup,
+    skillaug::rl::trainer::Setup,
+) {
+    let (dir, run) = ingested("ballplay");
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        ..TrainConfig::default()
+    };
+    let mut changed = base.clone();
+    change(&mut changed);
+    (dir, setup_for(&run, &base), setup_for(&run, &changed))
+}
+
+/// The error training's set-up gives on Locomotion (no ball) with
+/// `change` made to the default settings.
+fn refused_without_a_ball(change: impl FnOnce(&mut TrainConfig)) -> String {
+    let (_dir, loco) = ingested("locomotion");
+    let mut cfg = TrainConfig::default();
+    change(&mut cfg);
     let err = skillaug::rl::trainer::Setup::load(
         &loco,
         Some(&data_root()),
-        &TrainConfig {
-            reference_ball: ReferenceBall::Simulated,
-            ..TrainConfig::default()
-        },
+        &cfg,
         &skillaug::augment::settings::StfConfig::default(),
     )
     .err()
     .expect("refused");
-    assert!(
-        format!("{err:#}").contains("train.reference_ball = \"simulated\": the training clips"),
-        "{err:#}"
-    );
+    format!("{err:#}")
 }
 
 #[test]
@@ -1805,20 +1819,8 @@ fn a_reference_hand_on_its_ball_changes_only_the_arms_and_chest_of_the_push_wind
     // reference: root, ball and contact flags stay the clip's; a dataset
     // without a ball is refused, naming the setting
     use skillaug::sim::hand_path::ReferenceHand;
-    let (_dir, run) = ingested("ballplay");
-    let base = TrainConfig {
-        skills: vec!["run".into()],
-        ..TrainConfig::default()
-    };
-    let captured = setup_for(&run, &base);
+    let (_dir, captured, on) = df_setups(|c| c.reference_hand = ReferenceHand::OnBall);
     assert!(captured.hands.is_empty());
-    let on = setup_for(
-        &run,
-        &TrainConfig {
-            reference_hand: ReferenceHand::OnBall,
-            ..base.clone()
-        },
-    );
     let found: Vec<(&str, usize, usize)> = on
         .hands
         .iter()
@@ -1856,21 +1858,10 @@ fn a_reference_hand_on_its_ball_changes_only_the_arms_and_chest_of_the_push_wind
             }
         }
     }
-    let (_loco_dir, loco) = ingested("locomotion");
-    let err = skillaug::rl::trainer::Setup::load(
-        &loco,
-        Some(&data_root()),
-        &TrainConfig {
-            reference_hand: ReferenceHand::OnBall,
-            ..TrainConfig::default()
-        },
-        &skillaug::augment::settings::StfConfig::default(),
-    )
-    .err()
-    .expect("refused");
+    let err = refused_without_a_ball(|c| c.reference_hand = ReferenceHand::OnBall);
     assert!(
-        format!("{err:#}").contains("train.reference_hand = \"on-ball\": the training clips"),
-        "{err:#}"
+        err.contains("train.reference_hand = \"on-ball\": the training clips"),
+        "{err}"
     );
 }
 
