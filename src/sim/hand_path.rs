@@ -129,7 +129,7 @@ pub fn repair_hands(
         }
         if f.n_bodies != model.bodies.len() {
             bail!(
-                "train.reference_hand: clip {} has {} bodies, the humanoid model {}",
+                "reference hand on the ball: clip {} has {} bodies, the humanoid model {}",
                 lib.clips[clip].name,
                 f.n_bodies,
                 model.bodies.len()
@@ -162,7 +162,7 @@ pub fn repair_hands(
 fn body_named(model: &Model, name: &str) -> Result<usize> {
     match model.bodies.iter().position(|b| b.name == name) {
         Some(i) => Ok(i),
-        None => bail!("train.reference_hand: the humanoid model has no body `{name}`"),
+        None => bail!("reference hand on the ball: the humanoid model has no body `{name}`"),
     }
 }
 

@@ -95,8 +95,8 @@ pub struct PushConfig {
     /// `train.reward_weights`); none by default: the paper's Table 8.
     pub reward_weights: WeightOverrides,
     /// The hand the replays and the search start from and track:
-    /// `"captured"` (the clip's) or `"on-ball"`, the pushing hand moved
-    /// with its ball ([`super::hand_path`], as `train.reference_hand`).
+    /// `"captured"` (the clip's) or `"on-ball"`, the pushing hand put on
+    /// top of its ball ([`super::hand_path`], as `train.reference_hand`).
     pub reference_hand: super::hand_path::ReferenceHand,
 }
 

@@ -55,7 +55,7 @@ pub fn run(common: &Common) -> Result<()> {
             cfg.min_frames,
             BLEND_S,
         )?;
-        println!("reference_hand = \"on-ball\": each push window's hand moved with its ball");
+        println!("reference_hand = \"on-ball\": each push window's hand put on top of its ball");
         println!(
             "{:<34} {:>9}  {:>4}  {:>10}  {:>15}  {:>11}",
             "clip", "frames", "hand", "body", "largest shift m", "residual m"
