@@ -244,8 +244,10 @@ fn repair_window(
     let end = (release + blend).min(limit.saturating_sub(1));
     let first = start.saturating_sub(blend).max(lower);
     for i in first..=end {
+        // A missing frame holds no pose to move (the window's own frames
+        // are all valid, `push_windows`).
         if !f.valid[i] {
-            break;
+            continue;
         }
         let own = joints_of(f, i);
         let fk_own = fk(model, f, i, &own);
