@@ -18,11 +18,13 @@
 //! is blended in linearly over [`BLEND_S`] before the
 //! window's first frame (not before the previous window's release) and
 //! out over [`BLEND_S`] after the release (not past the next window's
-//! first frame). It is reached by inverse kinematics on that side's
-//! thorax, shoulder, elbow and wrist joints and the chest joint (15
-//! exp-map components), damped least squares (Levenberg 1944, Marquardt
-//! 1963) on that body's position with a small pull towards the clip's own
-//! rotations; the rest of the body is the clip's. The captured body
+//! first frame); where one window's blend-out meets the next one's
+//! blend-in, the two translations add up. It is reached by inverse
+//! kinematics on that side's thorax, shoulder, elbow and wrist joints and
+//! the chest joint (15 exp-map components), damped least squares
+//! (Levenberg 1944, Marquardt 1963) on that body's position with a small
+//! pull towards the clip's own rotations; the rest of the body is the
+//! clip's. The captured body
 //! positions are moved by the forward kinematics' change, and joint and
 //! body velocities are differenced again as ingest derives them
 //! ([`crate::motion::clip::backward_diff`]), so the reference stays one
