@@ -37,6 +37,7 @@ use super::mjcf::{body_poses, Model};
 use super::push::push_windows;
 use super::world::hand_bodies;
 use crate::motion::clip::{backward_diff, ClipFrames};
+use crate::motion::quat::norm;
 use crate::motion::MotionLib;
 use anyhow::{bail, Result};
 use nalgebra::{DMatrix, DVector};
@@ -205,9 +206,7 @@ fn repair_window(
     // The hand body nearest the ball at the window's first frame.
     let fk0 = fk(model, f, start, &joints_of(f, start));
     let b0 = ball(f, start);
-    let dist = |p: [f64; 3], q: [f64; 3]| -> f64 {
-        (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt()
-    };
+    let dist = |p: [f64; 3], q: [f64; 3]| norm([p[0] - q[0], p[1] - q[1], p[2] - q[2]]);
     let near = (0..nb)
         .filter(|b| hand[*b])
         .min_by(|a, b| {
@@ -266,7 +265,7 @@ fn repair_window(
             let s = 1.0 - (i - release) as f64 / (blend + 1) as f64;
             last_delta.map(|v| v * s)
         };
-        repair.shift = repair.shift.max(dist(delta, [0.0; 3]));
+        repair.shift = repair.shift.max(norm(delta));
         let p_own = v3(&fk_own, near);
         let target: [f64; 3] = std::array::from_fn(|k| p_own[k] + delta[k]);
         let theta_own: Vec<f64> = (0..n)
