@@ -77,7 +77,9 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // (each running episode's last noise travels in the checkpoint), a
     // stiffer PD drive, a reference clock that follows the ball (its
     // waits and skips are rebuilt by the replay of each episode's actions)
-    // and a reference ball whose flights are simulated
+    // a reference ball whose flights are simulated, and feed-forward
+    // targets whose pushing hand follows the simulated ball (solved again
+    // at every replayed step)
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -149,6 +151,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.reference_ball=simulated",
             "--set",
             "train.reference_hand=on-ball",
+            "--set",
+            "train.hand_follows_ball=true",
         ],
     );
 }
@@ -1863,6 +1867,178 @@ fn a_reference_hand_on_its_ball_changes_only_the_arms_and_chest_of_the_push_wind
         err.contains("train.reference_hand = \"on-ball\": the training clips"),
         "{err}"
     );
+}
+
+#[test]
+fn a_hand_following_the_ball_moves_only_the_pushing_arm_and_chest_of_the_feed_forward_in_its_windows(
+) {
+    // `train.hand_follows_ball`: the set-up finds DF's three push windows
+    // (those `reference_hand` repairs) with their blends and leaves the
+    // reference as it is; at the start, the feed-forward targets differ
+    // from those without the setting exactly for the worlds whose next
+    // reference frame lies in a window's blend, and only in the chest and
+    // the pushing side's thorax, shoulder, elbow and wrist; a dataset
+    // without a ball and a run without residual actions are refused,
+    // naming the setting
+    let (dir, off, on) = df_setups(|c| c.hand_follows_ball = true);
+    assert!(off.ball_hands.is_empty());
+    let found: Vec<(&str, usize, usize)> = on
+        .ball_hands
+        .iter()
+        .map(|h| (on.lib.clips[h.clip].name.as_str(), h.start, h.release))
+        .collect();
+    assert_eq!(
+        found,
+        [
+            ("013_018pickle_run2_5", 41, 56),
+            ("013_018pickle_run_4", 2, 13),
+            ("013_018pickle_run_4", 50, 63)
+        ]
+    );
+    for (k, h) in on.ball_hands.iter().enumerate() {
+        // 0.1 s at 60 Hz, bounded by the neighbouring windows
+        assert_eq!(h.blend, 6);
+        let lower = match k {
+            2 => on.ball_hands[1].release + 1,
+            _ => 0,
+        };
+        let limit = match k {
+            1 => on.ball_hands[2].start,
+            _ => on.lib.frames[h.clip].frames,
+        };
+        assert_eq!(h.first, h.start.saturating_sub(6).max(lower), "window {k}");
+        assert_eq!(h.end, (h.release + 6).min(limit - 1), "window {k}");
+        assert_eq!(h.weight(h.start), 1.0);
+        assert_eq!(h.weight(h.release), 1.0);
+        assert!(h.weight(h.first) > 0.0 && h.weight(h.end) > 0.0);
+        assert!(h.first == 0 || h.weight(h.first - 1) == 0.0);
+        assert_eq!(h.weight(h.end + 1), 0.0);
+        assert!(h.height > 0.0 && h.height < 0.2, "{}", h.height);
+    }
+    for c in 0..off.lib.clips.len() {
+        assert_eq!(off.lib.frames[c].joint_rot, on.lib.frames[c].joint_rot);
+    }
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        residual_action: true,
+        ..TrainConfig::default()
+    };
+    let with = TrainConfig {
+        hand_follows_ball: true,
+        ..base.clone()
+    };
+    let n = 64;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let env_off = environment(&off, &base, None, n, &[], &mut rng).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let env_on = environment(&on, &with, None, n, &[], &mut rng).unwrap();
+    let (recs_off, recs_on) = (env_off.snapshot(), env_on.snapshot());
+    let mut moved = 0;
+    for e in 0..n {
+        assert_eq!(recs_off[e].traj.steps, recs_on[e].traj.steps, "world {e}");
+        let next = recs_on[e].traj.steps[1];
+        let (c, f) = (
+            next.ref_clip.unwrap() as usize,
+            next.ref_frame.unwrap() as usize,
+        );
+        let window = on
+            .ball_hands
+            .iter()
+            .find(|h| h.clip == c && h.first <= f && f <= h.end);
+        let (a, b) = (env_off.feed_forward_of(e), env_on.feed_forward_of(e));
+        assert_eq!(a.len(), b.len());
+        let changed: Vec<usize> = (0..a.len() / 3)
+            .filter(|j| a[3 * j..3 * j + 3] != b[3 * j..3 * j + 3])
+            .collect();
+        match window {
+            Some(h) => {
+                assert!(!changed.is_empty(), "world {e}: frame {f} of clip {c}");
+                assert!(
+                    changed.iter().all(|j| h.chain.contains(j)),
+                    "world {e}: joints {changed:?} outside {:?}",
+                    h.chain
+                );
+                moved += 1;
+            }
+            None => assert!(changed.is_empty(), "world {e}: frame {f} of clip {c}"),
+        }
+    }
+    assert!(moved > 0 && moved < n, "{moved} of {n} worlds in a window");
+    let err = refused_without_a_ball(|c| {
+        c.residual_action = true;
+        c.hand_follows_ball = true;
+    });
+    assert!(
+        err.contains("train.hand_follows_ball: the training clips"),
+        "{err}"
+    );
+    let run = dir.path().join("run");
+    refused(
+        &run,
+        &["train.hand_follows_ball=true"],
+        "train.hand_follows_ball moves the feed-forward targets of train.residual_action",
+    );
+}
+
+#[test]
+fn the_online_hand_reaches_its_target_with_the_arm_and_chest_alone() {
+    // `reach` (src/sim/hand_path.rs) on DF `run`'s first push window: the
+    // path-only forward kinematics agrees with the whole body's; a target
+    // 5 cm ahead of and 5 cm below the hand body is reached within 1 cm by
+    // changing only the window's chain; weight 0 changes nothing and 0.5
+    // moves each solved component halfway; a target 1 m away is followed
+    // only REACH_MAX_SHIFT m
+    use skillaug::sim::hand_path::{body_position, reach, REACH_MAX_SHIFT};
+    use skillaug::sim::mjcf::body_poses;
+    let (_dir, _off, on) = df_setups(|c| c.hand_follows_ball = true);
+    let h = &on.ball_hands[1];
+    let f = &on.lib.frames[h.clip];
+    let i = h.start + 3;
+    let nj = f.n_joints;
+    let joints = &f.joint_rot[i * 3 * nj..(i + 1) * 3 * nj];
+    let root = [
+        f.root_pos[3 * i],
+        f.root_pos[3 * i + 1],
+        f.root_pos[3 * i + 2],
+    ];
+    let rot = [
+        f.root_rot[4 * i],
+        f.root_rot[4 * i + 1],
+        f.root_rot[4 * i + 2],
+        f.root_rot[4 * i + 3],
+    ];
+    let (all, _) = body_poses(&on.model, root, rot, joints);
+    for b in 0..on.model.bodies.len() {
+        let p = body_position(&on.model, root, rot, joints, b);
+        for k in 0..3 {
+            assert!((p[k] - all[3 * b + k] as f64).abs() < 1e-5, "body {b}");
+        }
+    }
+    let own = body_position(&on.model, root, rot, joints, h.body);
+    let dist = |p: [f64; 3], q: [f64; 3]| {
+        ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+    };
+    let target = [own[0] + 0.05, own[1], own[2] - 0.05];
+    let got = reach(&on.model, h, root, rot, joints, target, 1.0);
+    let p = body_position(&on.model, root, rot, &got, h.body);
+    assert!(dist(p, target) < 0.01, "{p:?} against {target:?}");
+    for j in 0..nj {
+        let same = got[3 * j..3 * j + 3] == joints[3 * j..3 * j + 3];
+        if !h.chain.contains(&j) {
+            assert!(same, "joint {j} outside the chain moved");
+        }
+    }
+    assert_eq!(reach(&on.model, h, root, rot, joints, target, 0.0), joints);
+    let half = reach(&on.model, h, root, rot, joints, target, 0.5);
+    for k in 0..3 * nj {
+        let want = joints[k] + 0.5 * (got[k] - joints[k]);
+        assert!((half[k] - want).abs() < 1e-5, "component {k}");
+    }
+    let far = [own[0], own[1], own[2] - 1.0];
+    let got = reach(&on.model, h, root, rot, joints, far, 1.0);
+    let p = body_position(&on.model, root, rot, &got, h.body);
+    assert!(dist(p, own) < REACH_MAX_SHIFT + 0.01, "{p:?} from {own:?}");
+    assert!(dist(p, far) < dist(own, far) - 0.2, "{p:?} towards {far:?}");
 }
 
 #[test]

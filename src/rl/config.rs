@@ -394,6 +394,17 @@ pub struct TrainConfig {
     /// or the reference code. Not written when captured.
     #[serde(skip_serializing_if = "is_captured_hand")]
     pub reference_hand: crate::sim::hand_path::ReferenceHand,
+    /// Whether the pushing hand of every push window follows the simulated
+    /// ball in the feed-forward PD targets of `residual_action`: the arm
+    /// and chest joints solved online, at every step of a window and its
+    /// blends, so that the hand sits above the ball the simulation has,
+    /// led by the reference ball's motion over the drives' time constant
+    /// ([`crate::rl::humanoid::EnvConfig::ball_hand`],
+    /// [`crate::sim::hand_path::reach`]); the reference the reward scores
+    /// is unchanged. In training and in the evaluation of the policy. Not
+    /// in the paper or the reference code. Not written when off.
+    #[serde(skip_serializing_if = "is_false")]
+    pub hand_follows_ball: bool,
 }
 
 fn is_captured(b: &crate::sim::ball_path::ReferenceBall) -> bool {
@@ -600,6 +611,7 @@ impl Default for TrainConfig {
             object_angular_damping: None,
             reference_ball: crate::sim::ball_path::ReferenceBall::Captured,
             reference_hand: crate::sim::hand_path::ReferenceHand::Captured,
+            hand_follows_ball: false,
         }
     }
 }
@@ -719,6 +731,12 @@ impl crate::config::Validate for TrainConfig {
                  {stage}.push_feed_forward or {stage}.warm_start_push optimises, and both are \
                  \"off\": turn one on, or leave push_objective at \"ball\"",
                 self.push_objective.name()
+            );
+        }
+        if self.hand_follows_ball && !self.residual_action {
+            anyhow::bail!(
+                "{stage}.hand_follows_ball moves the feed-forward targets of \
+                 {stage}.residual_action: set {stage}.residual_action = true, or hand_follows_ball = false"
             );
         }
         if self.push_feed_forward != PushJoints::Off && !self.residual_action {

@@ -298,6 +298,24 @@ pub struct EnvConfig {
     /// In training and in the policy's evaluation (the offsets travel in
     /// `policy.meta.json`). Not in the paper or the reference code.
     pub push_feed_forward: Vec<PushFeedForward>,
+    /// Push windows whose pushing hand follows the simulated ball in the
+    /// feed-forward PD targets of [`EnvConfig::residual_action`]
+    /// (`train.hand_follows_ball`; empty = off): at a step whose next
+    /// reference frame is an unmasked frame `f` of a window's clip within
+    /// its blend (`first..=end`), the arm and chest joints of the next
+    /// frame's targets are solved ([`crate::sim::hand_path::reach`]) so
+    /// that the window's hand body, in the pose rooted at the character's
+    /// own root, sits `height` above the simulated ball's centre, moved
+    /// further by how the reference ball moves relative to the reference
+    /// root from frame `f` to `f + lead`, world axes
+    /// ([`crate::sim::hand_path::REACH_LEAD_S`] at the clip's rate; the
+    /// lead is shortened to the frames the reference runs on along the
+    /// same clip and anchor), weighted by
+    /// [`crate::sim::hand_path::BallHand::weight`]. The reference the
+    /// reward and the observation use is unchanged. In training and in the
+    /// policy's evaluation (the windows are found again from the clips).
+    /// Not in the paper or the reference code.
+    pub ball_hand: Vec<crate::sim::hand_path::BallHand>,
 }
 
 /// One push window's offset for [`EnvConfig::push_feed_forward`].
@@ -436,6 +454,7 @@ impl EnvConfig {
             energy_bonus: 0.0,
             energy_bonus_scale: crate::reward::ENERGY_BONUS_SCALE,
             push_feed_forward: Vec::new(),
+            ball_hand: Vec::new(),
         }
     }
 }
@@ -1215,7 +1234,7 @@ impl Ctx<'_> {
                 ep.ff_rates = self.ff_rates(&g.joint_rot, &g.joint_vel);
             }
         }
-        self.update_next(&mut ep);
+        self.update_next(&mut ep, &g);
         self.write_reference_block(&g, &ep, &mut row);
         Ok(((w, ep, row), feature))
     }
@@ -1334,7 +1353,7 @@ impl Ctx<'_> {
         if !ended {
             self.extend(ep, &s);
         }
-        self.update_next(ep);
+        self.update_next(ep, &s);
         // (a reference that waited for its ball leaves steps over when the
         // episode reaches its length)
         let timeout = match self.cfg.fixed_length {
@@ -1424,7 +1443,7 @@ impl Ctx<'_> {
     /// change them; with [`EnvConfig::feed_forward_lead`] extrapolated,
     /// and inside a window of [`EnvConfig::push_feed_forward`] plus its
     /// offset), the anchored state as `ep.next_ref`.
-    fn update_next(&self, ep: &mut Episode) {
+    fn update_next(&self, ep: &mut Episode, s: &State) {
         let (res, obs) = (self.cfg.residual_action, self.cfg.reference_obs);
         if !(res || obs) {
             return;
@@ -1448,6 +1467,7 @@ impl Ctx<'_> {
                     Some(now) => lead_target(&now.joint_rot, &r.joint_rot, lead),
                     None => r.joint_rot.clone(),
                 };
+                let e = self.hand_on_ball(ep, s, &r, e);
                 ep.ff = feed_forward(&e);
                 ep.ff_plain.clear();
                 if let Some(p) = self.push_window(ep) {
@@ -1465,6 +1485,73 @@ impl Ctx<'_> {
             // masked steps after a pushed one hold the pose, not the push
             ep.ff = std::mem::take(&mut ep.ff_plain);
         }
+    }
+
+    /// The feed-forward joint targets `e` (`[J*3]`, rad) for the step to
+    /// `next`, the reference of `ep.at + 1`, with the pushing hand put
+    /// on `s`'s ball ([`EnvConfig::ball_hand`]); `e` itself outside the
+    /// windows or when off.
+    fn hand_on_ball(&self, ep: &Episode, s: &State, next: &State, e: Vec<f32>) -> Vec<f32> {
+        if self.cfg.ball_hand.is_empty() || s.obj_pos.len() < 3 || next.obj_pos.len() < 3 {
+            return e;
+        }
+        let along = |t: usize| {
+            ep.step_at(t)
+                .filter(|(st, _)| !st.masked)
+                .and_then(|(st, a)| Some((st.ref_clip?, st.ref_frame?, a)))
+        };
+        let Some((c, f, a)) = along(ep.at + 1) else {
+            return e;
+        };
+        let (c, f) = (c as usize, f as usize);
+        let Some(hand) = self
+            .cfg
+            .ball_hand
+            .iter()
+            .find(|h| h.clip == c && h.first <= f && f <= h.end)
+        else {
+            return e;
+        };
+        let fps = self.lib.clips[c].fps as f64;
+        let lead = (crate::sim::hand_path::REACH_LEAD_S * fps).round() as usize;
+        // the reference `lead` frames on, or as far as it runs along the
+        // same clip and anchor
+        let ahead = (1..=lead)
+            .rev()
+            .find(|&k| {
+                along(ep.at + 1 + k)
+                    .is_some_and(|(c2, f2, a2)| c2 as usize == c && f2 as usize == f + k && a2 == a)
+            })
+            .and_then(|k| self.reference(ep, ep.at + 1 + k));
+        // the reference ball's displacement relative to the reference's
+        // root: the lead that the drives' lag asks of the hand, the
+        // character's own travel left out
+        let rel = |r: &State| -> [f64; 3] {
+            std::array::from_fn(|k| (r.obj_pos[k] - r.root_pos[k]) as f64)
+        };
+        let disp: [f64; 3] = match &ahead {
+            Some(r) if r.obj_pos.len() >= 3 => {
+                let (a, b) = (rel(r), rel(next));
+                std::array::from_fn(|k| a[k] - b[k])
+            }
+            _ => [0.0; 3],
+        };
+        let ball = [s.obj_pos[0], s.obj_pos[1], s.obj_pos[2]].map(|v| v as f64);
+        let target = [
+            ball[0] + disp[0],
+            ball[1] + disp[1],
+            ball[2] + hand.height + disp[2],
+        ];
+        let root = s.root_pos;
+        crate::sim::hand_path::reach(
+            &self.model,
+            hand,
+            root,
+            s.root_rot,
+            &e,
+            target,
+            hand.weight(f),
+        )
     }
 
     /// The window of [`EnvConfig::push_feed_forward`] whose offset the
@@ -2259,6 +2346,15 @@ impl<'a> HumanoidEnv<'a> {
                 }
             });
         Ok(())
+    }
+
+    /// The feed-forward action of world `e`'s coming step (`[J*3]`, in
+    /// [-1, 1]; empty without [`EnvConfig::residual_action`]): the next
+    /// reference frame's joint rotations / π, with the push offsets of
+    /// [`EnvConfig::push_feed_forward`] and the hand of
+    /// [`EnvConfig::ball_hand`]; the policy's action is added to it.
+    pub fn feed_forward_of(&self, e: usize) -> &[f32] {
+        &self.eps[e].ff
     }
 
     /// The running episodes, for a checkpoint.

@@ -73,6 +73,10 @@ pub struct Setup {
     /// The push windows whose hand `train.reference_hand = "on-ball"` put
     /// on top of the ball, in clip and frame order (empty when captured).
     pub hands: Vec<crate::sim::hand_path::HandRepair>,
+    /// The push windows whose hand `train.hand_follows_ball` moves onto
+    /// the simulated ball online, in clip and frame order (empty when
+    /// off; [`ball_hands`]).
+    pub ball_hands: Vec<crate::sim::hand_path::BallHand>,
 }
 
 impl Setup {
@@ -159,6 +163,7 @@ impl Setup {
         let mut lib = lib;
         let hands = reference_hands(&mut lib, &clips, &model, &objects, cfg)?;
         let flights = reference_flights(&mut lib, &clips, &model, &objects, &sim, cfg)?;
+        let ball_hands = ball_hands(&lib, &clips, &model, &objects, cfg)?;
         let (lib, edges) = if cfg.seam_leave_search_s > 0.0 {
             leave_early(lib, edges, &clips, cfg, fps)
         } else {
@@ -175,6 +180,7 @@ impl Setup {
             seam_pool,
             hands,
             flights,
+            ball_hands,
             fk: stf_cfg.fk,
             lib,
             edges,
@@ -281,6 +287,55 @@ pub fn reference_hands(
              ball descending with a hand body within {} m of it for {} frames), so the \
              reference would stay the captured one; set it to \"captured\"",
             names(lib),
+            push.hand_radius,
+            push.min_frames
+        );
+    }
+    Ok(hands)
+}
+
+/// With `train.hand_follows_ball`, the push windows of `clips` whose
+/// hand follows the simulated ball online
+/// ([`crate::sim::hand_path::ball_hands`], the push search's window
+/// settings, found on the clips as `train.reference_hand` left them);
+/// nothing otherwise.
+///
+/// # Errors
+/// The setting on while the clips have no ball or no push window, naming
+/// `train.hand_follows_ball`; as [`crate::sim::hand_path::ball_hands`].
+pub fn ball_hands(
+    lib: &MotionLib,
+    clips: &[usize],
+    model: &Model,
+    objects: &[crate::sim::ObjectSpec],
+    cfg: &TrainConfig,
+) -> Result<Vec<crate::sim::hand_path::BallHand>> {
+    if !cfg.hand_follows_ball {
+        return Ok(Vec::new());
+    }
+    let names = clips
+        .iter()
+        .map(|&c| lib.clips[c].name.as_str())
+        .collect::<Vec<_>>()
+        .join(", ");
+    if objects.first().is_none_or(|o| o.name != "ball") {
+        bail!(
+            "train.hand_follows_ball: the training clips ({names}) have no ball; set it to false"
+        );
+    }
+    let push = crate::sim::push::PushConfig::default();
+    let hands = crate::sim::hand_path::ball_hands(
+        lib,
+        clips,
+        model,
+        push.hand_radius,
+        push.min_frames,
+        crate::sim::hand_path::BLEND_S,
+    )?;
+    if hands.is_empty() {
+        bail!(
+            "train.hand_follows_ball: no push window in the training clips ({names}) (a ball \
+             descending with a hand body within {} m of it for {} frames); set it to false",
             push.hand_radius,
             push.min_frames
         );
@@ -539,6 +594,12 @@ pub fn environment_with<'a>(
     if s.fk && stf.p_n > 0.0 {
         sampler = sampler.with_model(s.model.clone());
     }
+    // the online hand's windows come from the set-up, in training and in
+    // evaluation alike
+    let env_cfg = EnvConfig {
+        ball_hand: s.ball_hands.clone(),
+        ..env_cfg
+    };
     HumanoidEnv::new(
         EnvParts {
             lib: &s.lib,
@@ -1523,6 +1584,9 @@ impl<'a> Trainer<'a> {
                 "reference_hand={} (the pushing hand on top of its ball)",
                 cfg.reference_hand.name()
             ));
+        }
+        if cfg.hand_follows_ball {
+            on.push("hand_follows_ball (the pushing hand's targets on the simulated ball)".into());
         }
         if cfg.reference_ball != crate::sim::ball_path::ReferenceBall::Captured {
             on.push(format!(

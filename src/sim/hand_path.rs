@@ -32,6 +32,11 @@
 //! clip's. Not in the paper or the reference code; the measurements that
 //! chose "on top" over keeping the captured offset are in
 //! docs/training.md ("A reference hand on top of its ball").
+//!
+//! [`reach`] solves the same chain online, for `train.hand_follows_ball`:
+//! at every training step inside a push window ([`ball_hands`]) the
+//! feed-forward PD targets put the hand above the ball the simulation has,
+//! not the clip's ([`crate::rl::humanoid::EnvConfig::ball_hand`]).
 
 use super::mjcf::{body_poses, Model};
 use super::push::push_windows;
@@ -187,25 +192,29 @@ fn fk(model: &Model, f: &ClipFrames, i: usize, joint_rot: &[f32]) -> Vec<f32> {
     .0
 }
 
-/// Repair one window (module doc) of `f`: frames from `lower` at the
-/// earliest to before `limit`.
-#[allow(clippy::too_many_arguments)]
-fn repair_window(
-    f: &mut ClipFrames,
-    model: &Model,
-    hand: &[bool],
-    start: usize,
-    release: usize,
-    blend: usize,
-    lower: usize,
-    limit: usize,
-) -> Result<HandRepair> {
+/// The hand a push window pushes with: the hand body nearest the ball at
+/// the window's first frame, its side and the joints solved for it.
+struct WindowHand {
+    /// The hand body (model index).
+    body: usize,
+    /// `'L'` or `'R'`.
+    side: char,
+    /// Joint indices of [`CHAIN`] on that side (`[5]`).
+    chain: Vec<usize>,
+    /// That body's distance from the ball's centre at the first frame, m.
+    height: f64,
+}
+
+/// The [`WindowHand`] of the window of `f` starting at frame `start`.
+fn window_hand(f: &ClipFrames, model: &Model, hand: &[bool], start: usize) -> Result<WindowHand> {
     let (nj, nb, no) = (f.n_joints, f.n_bodies, f.n_objects);
-    let joints_of = |f: &ClipFrames, i: usize| f.joint_rot[i * 3 * nj..(i + 1) * 3 * nj].to_vec();
-    let ball = |f: &ClipFrames, i: usize| v3(&f.obj_pos[i * 3 * no..], 0);
-    // The hand body nearest the ball at the window's first frame.
-    let fk0 = fk(model, f, start, &joints_of(f, start));
-    let b0 = ball(f, start);
+    let fk0 = fk(
+        model,
+        f,
+        start,
+        &f.joint_rot[start * 3 * nj..(start + 1) * 3 * nj],
+    );
+    let b0 = v3(&f.obj_pos[start * 3 * no..], 0);
     let dist = |p: [f64; 3], q: [f64; 3]| norm([p[0] - q[0], p[1] - q[1], p[2] - q[2]]);
     let near = (0..nb)
         .filter(|b| hand[*b])
@@ -224,10 +233,43 @@ fn repair_window(
     for name in CHAIN {
         chain.push(body_named(model, &name.replace('#', &side.to_string()))? - 1);
     }
+    Ok(WindowHand {
+        body: near,
+        side,
+        chain,
+        height: dist(v3(&fk0, near), b0),
+    })
+}
+
+/// Repair one window (module doc) of `f`: frames from `lower` at the
+/// earliest to before `limit`.
+#[allow(clippy::too_many_arguments)]
+fn repair_window(
+    f: &mut ClipFrames,
+    model: &Model,
+    hand: &[bool],
+    start: usize,
+    release: usize,
+    blend: usize,
+    lower: usize,
+    limit: usize,
+) -> Result<HandRepair> {
+    let (nj, nb, no) = (f.n_joints, f.n_bodies, f.n_objects);
+    let joints_of = |f: &ClipFrames, i: usize| f.joint_rot[i * 3 * nj..(i + 1) * 3 * nj].to_vec();
+    let ball = |f: &ClipFrames, i: usize| v3(&f.obj_pos[i * 3 * no..], 0);
+    let dist = |p: [f64; 3], q: [f64; 3]| norm([p[0] - q[0], p[1] - q[1], p[2] - q[2]]);
+    let WindowHand {
+        body: near,
+        side,
+        chain,
+        height,
+    } = window_hand(f, model, hand, start)?;
     let n = 3 * chain.len();
+    let fk0 = fk(model, f, start, &joints_of(f, start));
+    let b0 = ball(f, start);
     let p_near0 = v3(&fk0, near);
     // Directly above the ball's centre, as far from it as at the start.
-    let d0 = [0.0, 0.0, dist(p_near0, b0)];
+    let d0 = [0.0, 0.0, height];
     let delta0: [f64; 3] = std::array::from_fn(|k| b0[k] + d0[k] - p_near0[k]);
     let mut repair = HandRepair {
         clip: 0,
@@ -272,15 +314,14 @@ fn repair_window(
             .map(|k| own[3 * chain[k / 3] + k % 3] as f64)
             .collect();
         let start_theta: Vec<f64> = (0..n).map(|k| theta_own[k] + carry[k]).collect();
-        let theta = solve(
-            model,
-            Pose { f, i, own: &own },
-            &chain,
-            near,
-            target,
-            &theta_own,
-            start_theta,
-        );
+        let mut joints = own.clone();
+        let position = |t: &[f64]| {
+            for k in 0..n {
+                joints[3 * chain[k / 3] + k % 3] = t[k] as f32;
+            }
+            v3(&fk(model, f, i, &joints), near)
+        };
+        let theta = solve(position, target, &theta_own, start_theta, ITERATIONS);
         let mut joints = own.clone();
         for k in 0..n {
             joints[3 * chain[k / 3] + k % 3] = theta[k] as f32;
@@ -299,50 +340,37 @@ fn repair_window(
     Ok(repair)
 }
 
-/// A frame `i` of clip `f` with the joint rotations `own` (`[J*3]`).
-struct Pose<'a> {
-    f: &'a ClipFrames,
-    i: usize,
-    own: &'a [f32],
-}
-
-/// Damped least squares on the `chain` joints' exp-map components of
-/// `pose`: bring body `body` to `target` (m), pulled towards `theta_own`
-/// by [`LAMBDA`], from `theta`. Returns the components.
+/// Damped least squares on `n` exp-map components `theta`: bring the
+/// body whose position (m) `position` gives for them to `target` (m),
+/// pulled towards `theta_own` by [`LAMBDA`], in at most `iterations`
+/// Levenberg-Marquardt steps. Returns the components.
 fn solve(
-    model: &Model,
-    pose: Pose<'_>,
-    chain: &[usize],
-    body: usize,
+    mut position: impl FnMut(&[f64]) -> [f64; 3],
     target: [f64; 3],
     theta_own: &[f64],
     mut theta: Vec<f64>,
+    iterations: usize,
 ) -> Vec<f64> {
-    let Pose { f, i, own } = pose;
     let n = theta.len();
-    let mut joints = own.to_vec();
-    let eval = |t: &[f64], joints: &mut Vec<f32>| -> Vec<f64> {
-        for k in 0..n {
-            joints[3 * chain[k / 3] + k % 3] = t[k] as f32;
-        }
-        let x = v3(&fk(model, f, i, joints), body);
+    let mut eval = |t: &[f64]| -> Vec<f64> {
+        let x = position(t);
         (0..3).map(|k| target[k] - x[k]).collect()
     };
     let cost = |r: &[f64], t: &[f64]| -> f64 {
         r.iter().map(|v| v * v).sum::<f64>()
             + LAMBDA * (0..n).map(|k| (t[k] - theta_own[k]).powi(2)).sum::<f64>()
     };
-    let mut r = eval(&theta, &mut joints);
+    let mut r = eval(&theta);
     let mut c = cost(&r, &theta);
     let mut mu = 1e-3;
-    for _ in 0..ITERATIONS {
+    for _ in 0..iterations {
         // Forward-difference Jacobian of the positions (= -d r / d theta).
         let m = r.len();
         let mut jac = DMatrix::<f64>::zeros(m, n);
         for k in 0..n {
             let mut t = theta.clone();
             t[k] += H;
-            let rk = eval(&t, &mut joints);
+            let rk = eval(&t);
             for row in 0..m {
                 jac[(row, k)] = (r[row] - rk[row]) / H;
             }
@@ -365,7 +393,7 @@ fn solve(
             };
             let step = ch.solve(&g);
             let t: Vec<f64> = (0..n).map(|k| theta[k] + step[k]).collect();
-            let rt = eval(&t, &mut joints);
+            let rt = eval(&t);
             let ct = cost(&rt, &t);
             if ct < c {
                 theta = t;
@@ -383,4 +411,209 @@ fn solve(
         }
     }
     theta
+}
+
+/// Iterations at most of one online solve ([`reach`]): it starts from the
+/// reference's own rotations, a few centimetres from the answer.
+const REACH_ITERATIONS: usize = 12;
+
+/// How far [`reach`] moves its hand body from where the reference's pose
+/// puts it, m, at most: the largest shift the offline repair asks of DF's
+/// and DL's windows is 0.15-0.20 m (docs/training.md, "A reference hand on
+/// top of its ball"); a ball farther off is followed only this far, so a
+/// stray ball does not twist the chest.
+pub const REACH_MAX_SHIFT: f64 = 0.3;
+
+/// Lead of the online hand target over the simulated ball, s: the PD
+/// drives' time constant kd/kp (0.1 s for every BallPlay joint,
+/// docs/training.md, "No nearby targets push as the clip does").
+pub const REACH_LEAD_S: f64 = 0.1;
+
+/// One push window of a training clip whose pushing hand follows the
+/// simulated ball online (`train.hand_follows_ball`, [`reach`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BallHand {
+    /// Clip index in the library.
+    pub clip: usize,
+    /// The window's first frame.
+    pub start: usize,
+    /// The release frame (the last frame held on the ball).
+    pub release: usize,
+    /// First frame of the blend before `start` (inclusive).
+    pub first: usize,
+    /// Last frame of the blend after `release` (inclusive).
+    pub end: usize,
+    /// Frames of each blend ([`BLEND_S`] at the clip's rate).
+    pub blend: usize,
+    /// The hand body held above the ball (model index).
+    pub body: usize,
+    /// Joint indices solved (`[5]`: thorax, shoulder, elbow, wrist of the
+    /// pushing side, chest).
+    pub chain: Vec<usize>,
+    /// The body's height above the ball's centre, m: its distance from
+    /// the ball at the window's first frame.
+    pub height: f64,
+}
+
+impl BallHand {
+    /// Weight of the online target at clip frame `frame`, in [0, 1]: 1
+    /// from `start` through `release`, falling linearly over `blend`
+    /// frames on each side, 0 outside `first..=end`.
+    pub fn weight(&self, frame: usize) -> f64 {
+        if frame < self.first || frame > self.end {
+            0.0
+        } else if frame < self.start {
+            1.0 - (self.start - frame) as f64 / (self.blend + 1) as f64
+        } else if frame <= self.release {
+            1.0
+        } else {
+            1.0 - (frame - self.release) as f64 / (self.blend + 1) as f64
+        }
+    }
+}
+
+/// The push windows of `clips` in `lib` for the online hand
+/// (`train.hand_follows_ball`): the windows of
+/// [`super::push::push_windows`] with `hand_radius` m and `min_frames`,
+/// each with the hand that pushes and its blend of `blend_s` s, bounded
+/// as [`repair_hands`] bounds its own (never past the next window's first
+/// frame or before the previous window's release). Clips without an
+/// object have none. In clip and frame order.
+///
+/// # Errors
+/// As [`repair_hands`]: a model without a solved joint's body, or a clip
+/// whose bodies are not the model's, naming the body or the clip.
+pub fn ball_hands(
+    lib: &MotionLib,
+    clips: &[usize],
+    model: &Model,
+    hand_radius: f64,
+    min_frames: usize,
+    blend_s: f64,
+) -> Result<Vec<BallHand>> {
+    let hand = hand_bodies(model);
+    let mut out = Vec::new();
+    for &clip in clips {
+        let f = &lib.frames[clip];
+        if f.n_objects == 0 {
+            continue;
+        }
+        if f.n_bodies != model.bodies.len() {
+            bail!(
+                "hand following the ball: clip {} has {} bodies, the humanoid model {}",
+                lib.clips[clip].name,
+                f.n_bodies,
+                model.bodies.len()
+            );
+        }
+        let blend = (blend_s * lib.clips[clip].fps as f64).round() as usize;
+        let windows = push_windows(f, &hand, hand_radius, min_frames);
+        for (k, w) in windows.iter().enumerate() {
+            let limit = windows.get(k + 1).map_or(f.frames, |n| n.start);
+            let lower = if k == 0 {
+                0
+            } else {
+                windows[k - 1].release + 1
+            };
+            let h = window_hand(f, model, &hand, w.start)?;
+            out.push(BallHand {
+                clip,
+                start: w.start,
+                release: w.release,
+                first: w.start.saturating_sub(blend).max(lower),
+                end: (w.release + blend).min(limit.saturating_sub(1)),
+                blend,
+                body: h.body,
+                chain: h.chain,
+                height: h.height,
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// Position of `body`, m, in the pose of root `root_pos` (m) and
+/// `root_rot` (quaternion x, y, z, w) with joints `joint_rot` (`[J*3]`
+/// exp-maps, rad): forward kinematics along the body's path from the root
+/// only (as [`body_poses`] computes every body).
+pub fn body_position(
+    model: &Model,
+    root_pos: [f32; 3],
+    root_rot: [f32; 4],
+    joint_rot: &[f32],
+    body: usize,
+) -> [f64; 3] {
+    use crate::motion::quat;
+    let mut path = vec![body];
+    while let Some(p) = model.bodies[*path.last().unwrap_or(&0)].parent {
+        path.push(p);
+    }
+    let mut rot = root_rot.map(|v| v as f64);
+    let mut pos = root_pos.map(|v| v as f64);
+    for &i in path.iter().rev().skip(1) {
+        let b = &model.bodies[i];
+        let o = quat::rotate(rot, b.pos);
+        pos = [pos[0] + o[0], pos[1] + o[1], pos[2] + o[2]];
+        let j = &joint_rot[3 * (i - 1)..3 * i];
+        rot = quat::mul(
+            rot,
+            quat::from_expmap([j[0] as f64, j[1] as f64, j[2] as f64]),
+        );
+    }
+    pos
+}
+
+/// The joint rotations `joint_rot` (`[J*3]` exp-maps, rad; the
+/// reference's next frame) with `hand`'s chain moved so that its body,
+/// in a pose rooted at `root_pos` / `root_rot`, reaches `target` (m) by
+/// damped least squares as the offline repair ([`repair_hands`]), the
+/// target first brought within [`REACH_MAX_SHIFT`] of where `joint_rot`
+/// puts the body, and the change scaled by `weight` in [0, 1]
+/// ([`BallHand::weight`]). Not in the paper or the reference code.
+pub fn reach(
+    model: &Model,
+    hand: &BallHand,
+    root_pos: [f32; 3],
+    root_rot: [f32; 4],
+    joint_rot: &[f32],
+    target: [f64; 3],
+    weight: f64,
+) -> Vec<f32> {
+    let mut joints = joint_rot.to_vec();
+    if weight <= 0.0 {
+        return joints;
+    }
+    let chain = &hand.chain;
+    let n = 3 * chain.len();
+    let theta_own: Vec<f64> = (0..n)
+        .map(|k| joint_rot[3 * chain[k / 3] + k % 3] as f64)
+        .collect();
+    let own = body_position(model, root_pos, root_rot, joint_rot, hand.body);
+    let shift: [f64; 3] = std::array::from_fn(|k| target[k] - own[k]);
+    let len = norm(shift);
+    let scale = if len > REACH_MAX_SHIFT {
+        REACH_MAX_SHIFT / len
+    } else {
+        1.0
+    };
+    let target: [f64; 3] = std::array::from_fn(|k| own[k] + shift[k] * scale);
+    let mut scratch = joint_rot.to_vec();
+    let position = |t: &[f64]| {
+        for k in 0..n {
+            scratch[3 * chain[k / 3] + k % 3] = t[k] as f32;
+        }
+        body_position(model, root_pos, root_rot, &scratch, hand.body)
+    };
+    let theta = solve(
+        position,
+        target,
+        &theta_own,
+        theta_own.clone(),
+        REACH_ITERATIONS,
+    );
+    for k in 0..n {
+        let v = theta_own[k] + weight * (theta[k] - theta_own[k]);
+        joints[3 * chain[k / 3] + k % 3] = v as f32;
+    }
+    joints
 }
