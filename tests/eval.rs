@@ -471,6 +471,28 @@ fn a_policy_trained_with_the_hand_on_its_ball_is_evaluated_against_the_same_refe
     assert_ne!(mean_sm(&as_trained), other);
 }
 
+#[test]
+fn a_policy_trained_with_its_hand_following_the_ball_is_evaluated_with_it() {
+    // `train.hand_follows_ball` travels in policy.meta.json and evaluation
+    // finds the push windows again and moves the feed-forward targets as
+    // training did: taking the setting out of the description gives other
+    // trials
+    let (dir, run, pol) =
+        df_policy(&["train.residual_action=true", "train.hand_follows_ball=true"]);
+    let from = run.to_str().unwrap();
+    let (_, meta) = policy_meta(&pol);
+    assert_eq!(meta["train"]["hand_follows_ball"], true);
+    let as_trained = dir.path().join("ev-follows");
+    eval(from, &pol, &as_trained, &SHORT_SR);
+    let other = eval_without(
+        from,
+        &pol,
+        "hand_follows_ball",
+        &dir.path().join("ev-clip-hand"),
+    );
+    assert_ne!(mean_sm(&as_trained), other);
+}
+
 /// The mean SM per trial of the short SR evaluation of `pol` on run
 /// `from` into `out`, with `key` taken out of the description's training
 /// settings (its default then applies); the description is left so.

@@ -1799,6 +1799,14 @@ fn df_setups(
     (dir, setup_for(&run, &base), setup_for(&run, &changed))
 }
 
+/// DF's push windows: clip, first frame, release frame
+/// ([`skillaug::sim::push::push_windows`] with the push search's settings).
+const DF_PUSH_WINDOWS: [(&str, usize, usize); 3] = [
+    ("013_018pickle_run2_5", 41, 56),
+    ("013_018pickle_run_4", 2, 13),
+    ("013_018pickle_run_4", 50, 63),
+];
+
 /// The error training's set-up gives on Locomotion (no ball) with
 /// `change` made to the default settings.
 fn refused_without_a_ball(change: impl FnOnce(&mut TrainConfig)) -> String {
@@ -1830,14 +1838,7 @@ fn a_reference_hand_on_its_ball_changes_only_the_arms_and_chest_of_the_push_wind
         .iter()
         .map(|h| (on.lib.clips[h.clip].name.as_str(), h.start, h.release))
         .collect();
-    assert_eq!(
-        found,
-        [
-            ("013_018pickle_run2_5", 41, 56),
-            ("013_018pickle_run_4", 2, 13),
-            ("013_018pickle_run_4", 50, 63)
-        ]
-    );
+    assert_eq!(found, DF_PUSH_WINDOWS);
     for c in 0..captured.lib.clips.len() {
         let (a, b) = (&captured.lib.frames[c], &on.lib.frames[c]);
         assert_eq!(a.root_pos, b.root_pos, "clip {c}");
@@ -1887,14 +1888,7 @@ fn a_hand_following_the_ball_moves_only_the_pushing_arm_and_chest_of_the_feed_fo
         .iter()
         .map(|h| (on.lib.clips[h.clip].name.as_str(), h.start, h.release))
         .collect();
-    assert_eq!(
-        found,
-        [
-            ("013_018pickle_run2_5", 41, 56),
-            ("013_018pickle_run_4", 2, 13),
-            ("013_018pickle_run_4", 50, 63)
-        ]
-    );
+    assert_eq!(found, DF_PUSH_WINDOWS);
     for (k, h) in on.ball_hands.iter().enumerate() {
         // 0.1 s at 60 Hz, bounded by the neighbouring windows
         assert_eq!(h.blend, 6);

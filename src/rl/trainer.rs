@@ -239,6 +239,16 @@ pub fn training_sim(fps: f64, cfg: &TrainConfig) -> SimOptions {
     }
 }
 
+/// The names of `clips` in `lib`, comma-separated (for the set-up's
+/// errors).
+fn clip_names(lib: &MotionLib, clips: &[usize]) -> String {
+    clips
+        .iter()
+        .map(|&c| lib.clips[c].name.as_str())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// With `train.reference_hand = "on-ball"`, put the pushing hand of every
 /// push window of `clips` on top of its ball
 /// ([`crate::sim::hand_path::repair_hands`], the push search's window
@@ -258,18 +268,11 @@ pub fn reference_hands(
     if cfg.reference_hand == ReferenceHand::Captured {
         return Ok(Vec::new());
     }
-    let names = |lib: &MotionLib| {
-        clips
-            .iter()
-            .map(|&c| lib.clips[c].name.as_str())
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
     if objects.first().is_none_or(|o| o.name != "ball") {
         bail!(
             "train.reference_hand = \"on-ball\": the training clips ({}) have no ball; set it \
              to \"captured\"",
-            names(lib)
+            clip_names(lib, clips)
         );
     }
     let push = crate::sim::push::PushConfig::default();
@@ -286,7 +289,7 @@ pub fn reference_hands(
             "train.reference_hand = \"on-ball\": no push window in the training clips ({}) (a \
              ball descending with a hand body within {} m of it for {} frames), so the \
              reference would stay the captured one; set it to \"captured\"",
-            names(lib),
+            clip_names(lib, clips),
             push.hand_radius,
             push.min_frames
         );
@@ -313,11 +316,7 @@ pub fn ball_hands(
     if !cfg.hand_follows_ball {
         return Ok(Vec::new());
     }
-    let names = clips
-        .iter()
-        .map(|&c| lib.clips[c].name.as_str())
-        .collect::<Vec<_>>()
-        .join(", ");
+    let names = clip_names(lib, clips);
     if objects.first().is_none_or(|o| o.name != "ball") {
         bail!(
             "train.hand_follows_ball: the training clips ({names}) have no ball; set it to false"
@@ -366,11 +365,7 @@ pub fn reference_flights(
     if cfg.reference_ball == ReferenceBall::Captured {
         return Ok(Vec::new());
     }
-    let names = clips
-        .iter()
-        .map(|&c| lib.clips[c].name.as_str())
-        .collect::<Vec<_>>()
-        .join(", ");
+    let names = clip_names(lib, clips);
     if objects.first().is_none_or(|o| o.name != "ball") {
         bail!(
             "train.reference_ball = \"simulated\": the training clips ({}) have no ball; set it \

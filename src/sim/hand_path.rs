@@ -116,9 +116,7 @@ pub struct HandRepair {
 /// are. Returns one [`HandRepair`] per window, in clip and frame order.
 ///
 /// # Errors
-/// A model without one of the bodies of the solved joints (`L_`/`R_`
-/// thorax, shoulder, elbow, wrist; chest), or a clip whose bodies are not
-/// the model's, naming the body or the clip.
+/// As [`ball_hands`], which finds the windows.
 pub fn repair_hands(
     lib: &mut MotionLib,
     clips: &[usize],
@@ -127,37 +125,20 @@ pub fn repair_hands(
     min_frames: usize,
     blend_s: f64,
 ) -> Result<Vec<HandRepair>> {
-    let hand = hand_bodies(model);
+    // every window is found on the clip as it comes: a window's repair
+    // stops before the next window's first frame, the only frame the next
+    // window's hand is chosen at
+    let windows = ball_hands(lib, clips, model, hand_radius, min_frames, blend_s)?;
     let mut out = Vec::new();
+    for h in &windows {
+        let mut r = repair_window(&mut lib.frames[h.clip], model, h);
+        r.clip = h.clip;
+        out.push(r);
+    }
     for &clip in clips {
-        let fps = lib.clips[clip].fps as f64;
-        let f = &mut lib.frames[clip];
-        if f.n_objects == 0 {
-            continue;
-        }
-        if f.n_bodies != model.bodies.len() {
-            bail!(
-                "reference hand on the ball: clip {} has {} bodies, the humanoid model {}",
-                lib.clips[clip].name,
-                f.n_bodies,
-                model.bodies.len()
-            );
-        }
-        let windows = push_windows(f, &hand, hand_radius, min_frames);
-        let blend = (blend_s * fps).round() as usize;
-        for (k, w) in windows.iter().enumerate() {
-            // The blend ends before the next window's first frame.
-            let limit = windows.get(k + 1).map_or(f.frames, |n| n.start);
-            let lower = if k == 0 {
-                0
-            } else {
-                windows[k - 1].release + 1
-            };
-            let mut r = repair_window(f, model, &hand, w.start, w.release, blend, lower, limit)?;
-            r.clip = clip;
-            out.push(r);
-        }
-        if !windows.is_empty() {
+        if windows.iter().any(|h| h.clip == clip) {
+            let fps = lib.clips[clip].fps as f64;
+            let f = &mut lib.frames[clip];
             let (nj, nb) = (f.n_joints, f.n_bodies);
             f.joint_vel = backward_diff(&f.joint_rot, 3 * nj, &f.valid, fps);
             f.body_vel = backward_diff(&f.body_pos, 3 * nb, &f.valid, fps);
@@ -170,7 +151,7 @@ pub fn repair_hands(
 fn body_named(model: &Model, name: &str) -> Result<usize> {
     match model.bodies.iter().position(|b| b.name == name) {
         Some(i) => Ok(i),
-        None => bail!("reference hand on the ball: the humanoid model has no body `{name}`"),
+        None => bail!("pushing hands: the humanoid model has no body `{name}`"),
     }
 }
 
@@ -241,41 +222,26 @@ fn window_hand(f: &ClipFrames, model: &Model, hand: &[bool], start: usize) -> Re
     })
 }
 
-/// Repair one window (module doc) of `f`: frames from `lower` at the
-/// earliest to before `limit`.
-#[allow(clippy::too_many_arguments)]
-fn repair_window(
-    f: &mut ClipFrames,
-    model: &Model,
-    hand: &[bool],
-    start: usize,
-    release: usize,
-    blend: usize,
-    lower: usize,
-    limit: usize,
-) -> Result<HandRepair> {
+/// Repair window `h` (module doc) of `f`, over its blends
+/// (`h.first..=h.end`).
+fn repair_window(f: &mut ClipFrames, model: &Model, h: &BallHand) -> HandRepair {
     let (nj, nb, no) = (f.n_joints, f.n_bodies, f.n_objects);
     let joints_of = |f: &ClipFrames, i: usize| f.joint_rot[i * 3 * nj..(i + 1) * 3 * nj].to_vec();
     let ball = |f: &ClipFrames, i: usize| v3(&f.obj_pos[i * 3 * no..], 0);
     let dist = |p: [f64; 3], q: [f64; 3]| norm([p[0] - q[0], p[1] - q[1], p[2] - q[2]]);
-    let WindowHand {
-        body: near,
-        side,
-        chain,
-        height,
-    } = window_hand(f, model, hand, start)?;
+    let (start, release, blend, near, chain) = (h.start, h.release, h.blend, h.body, &h.chain);
     let n = 3 * chain.len();
     let fk0 = fk(model, f, start, &joints_of(f, start));
     let b0 = ball(f, start);
     let p_near0 = v3(&fk0, near);
     // Directly above the ball's centre, as far from it as at the start.
-    let d0 = [0.0, 0.0, height];
+    let d0 = [0.0, 0.0, h.height];
     let delta0: [f64; 3] = std::array::from_fn(|k| b0[k] + d0[k] - p_near0[k]);
     let mut repair = HandRepair {
-        clip: 0,
+        clip: h.clip,
         start,
         release,
-        side,
+        side: h.side,
         body: near,
         shift: 0.0,
         residual: 0.0,
@@ -284,9 +250,7 @@ fn repair_window(
     // The offset of the solution from the clip's rotations at the frame
     // before, to start the next frame's solve from.
     let mut carry = vec![0.0f64; n];
-    let end = (release + blend).min(limit.saturating_sub(1));
-    let first = start.saturating_sub(blend).max(lower);
-    for i in first..=end {
+    for i in h.first..=h.end {
         // A missing frame holds no pose to move (the window's own frames
         // are all valid, `push_windows`).
         if !f.valid[i] {
@@ -337,7 +301,7 @@ fn repair_window(
             }
         }
     }
-    Ok(repair)
+    repair
 }
 
 /// Damped least squares on `n` exp-map components `theta`: bring the
@@ -445,6 +409,8 @@ pub struct BallHand {
     pub end: usize,
     /// Frames of each blend ([`BLEND_S`] at the clip's rate).
     pub blend: usize,
+    /// `'L'` or `'R'`: the pushing hand.
+    pub side: char,
     /// The hand body held above the ball (model index).
     pub body: usize,
     /// Joint indices solved (`[5]`: thorax, shoulder, elbow, wrist of the
@@ -472,17 +438,19 @@ impl BallHand {
     }
 }
 
-/// The push windows of `clips` in `lib` for the online hand
-/// (`train.hand_follows_ball`): the windows of
+/// The push windows of `clips` in `lib`, for the online hand
+/// (`train.hand_follows_ball`) and the offline repair ([`repair_hands`]):
+/// the windows of
 /// [`super::push::push_windows`] with `hand_radius` m and `min_frames`,
 /// each with the hand that pushes and its blend of `blend_s` s, bounded
-/// as [`repair_hands`] bounds its own (never past the next window's first
-/// frame or before the previous window's release). Clips without an
+/// so that it never reaches the next window's first frame or the previous
+/// window's release. Clips without an
 /// object have none. In clip and frame order.
 ///
 /// # Errors
-/// As [`repair_hands`]: a model without a solved joint's body, or a clip
-/// whose bodies are not the model's, naming the body or the clip.
+/// A model without one of the bodies of the solved joints (`L_`/`R_`
+/// thorax, shoulder, elbow, wrist; chest), or a clip whose bodies are not
+/// the model's, naming the body or the clip.
 pub fn ball_hands(
     lib: &MotionLib,
     clips: &[usize],
@@ -500,7 +468,7 @@ pub fn ball_hands(
         }
         if f.n_bodies != model.bodies.len() {
             bail!(
-                "hand following the ball: clip {} has {} bodies, the humanoid model {}",
+                "pushing hands: clip {} has {} bodies, the humanoid model {}",
                 lib.clips[clip].name,
                 f.n_bodies,
                 model.bodies.len()
@@ -523,6 +491,7 @@ pub fn ball_hands(
                 first: w.start.saturating_sub(blend).max(lower),
                 end: (w.release + blend).min(limit.saturating_sub(1)),
                 blend,
+                side: h.side,
                 body: h.body,
                 chain: h.chain,
                 height: h.height,
