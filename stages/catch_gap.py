@@ -36,15 +36,15 @@ BOUNCE_BELOW = 0.4  # m, a ball turning upwards below this has bounced
 REACHABLE = 0.15  # m, height gap counted as "where the clip's hand meets it"
 
 
-def main():
-    args = [a for a in sys.argv[1:] if a != "-v"]
-    verbose = "-v" in sys.argv[1:]
-    if len(args) != 2:
-        sys.exit(__doc__)
-    run, ev = args
+def load(run, ev, extra=()):
+    """The clips' ids and rates, the reference per (clip name, frame):
+    (ball height, ball vertical velocity, a clip hand within NEAR of the
+    ball, ball position), and the recorded SR trials: trial -> steps in
+    order, each (step, ball position, clip index, frame) plus the columns
+    named in `extra`."""
     for f in [f"{run}/clips.parquet", f"{run}/frames.parquet", f"{ev}/eval_rollouts.parquet"]:
         if not os.path.isfile(f):
-            sys.exit(f"catch_gap.py: {f} not found (RUN_FOLDER: an ingest output; EVAL_FOLDER: an eval --record output)")
+            sys.exit(f"{f} not found (RUN_FOLDER: an ingest output; EVAL_FOLDER: an eval --record output)")
     clips = pq.read_table(f"{run}/clips.parquet").to_pydict()
     ids = clips["clip_id"]
     fps = dict(zip(ids, clips["fps"]))
@@ -56,38 +56,63 @@ def main():
         if not p or not b:
             continue
         near = min(math.dist(p[:3], b[3 * k : 3 * k + 3]) for k in HAND_BODIES) < NEAR
-        ref[(c, f)] = (p[2], v[2], near)
-    cols = ["metric", "trial", "step", "obj_pos", "ref_clip", "ref_frame"]
-    ro = pq.read_table(f"{ev}/eval_rollouts.parquet").select(cols).to_pydict()
+        ref[(c, f)] = (p[2], v[2], near, p[:3])
+    cols = ["metric", "trial", "step", "obj_pos", "ref_clip", "ref_frame", *extra]
+    table = pq.read_table(f"{ev}/eval_rollouts.parquet")
+    missing = [c for c in cols if c not in table.column_names]
+    if missing:
+        sys.exit(f"{ev}/eval_rollouts.parquet lacks {', '.join(missing)} (record it again with this skillaug)")
+    ro = table.select(cols).to_pydict()
     trials = {}
-    for m, t, s, p, c, f in zip(*(ro[k] for k in cols)):
-        if m == "sr":
-            trials.setdefault(t, []).append((s, p, c, f))
+    for row in zip(*(ro[k] for k in cols)):
+        if row[0] == "sr":
+            trials.setdefault(row[1], []).append(row[2:])
     if not trials:
         sys.exit(f"{ev}/eval_rollouts.parquet has no recorded SR trial")
+    for t in trials:
+        trials[t].sort(key=lambda x: x[0])
+    return ids, fps, ref, trials
+
+
+def catches(steps, ids, ref):
+    """The positions in `steps` (one trial, in order) of its catches."""
+    out = []
+    bounced, prev_vz = False, None
+    for i, (_, _, c, f, *_) in enumerate(steps):
+        key = (ids[c], f) if c is not None else None
+        if key not in ref:
+            # a masked step or a missing frame: no reference to compare
+            bounced, prev_vz = False, None
+            continue
+        z, vz, near, _ = ref[key]
+        if prev_vz is not None and prev_vz <= 0 < vz and z < BOUNCE_BELOW:
+            bounced = True
+        if bounced and near:
+            out.append(i)
+            bounced = False
+        prev_vz = vz
+    return out
+
+
+def main():
+    args = [a for a in sys.argv[1:] if a != "-v"]
+    verbose = "-v" in sys.argv[1:]
+    if len(args) != 2:
+        sys.exit(__doc__)
+    ids, fps, ref, trials = load(*args)
     per_catch = {}
     for t in sorted(trials):
-        steps = sorted(trials[t], key=lambda x: x[0])
-        bounced, prev_vz, prev_z, line = False, None, None, []
-        for s, p, c, f in steps:
-            key = (ids[c], f) if c is not None else None
-            if key not in ref:
-                # a masked step or a missing frame: no reference to compare
-                bounced, prev_vz, prev_z = False, None, p[2]
-                continue
-            z, vz, near = ref[key]
-            rate = fps[ids[c]]
-            sim_vz = (p[2] - prev_z) * rate if prev_z is not None else float("nan")
-            if prev_vz is not None and prev_vz <= 0 < vz and z < BOUNCE_BELOW:
-                bounced = True
-            if bounced and near:
-                k = len(line)
-                gap = p[2] - z
-                rest = p[2] < 0.13 and abs(sim_vz) < 0.2
-                per_catch.setdefault(k, []).append((gap, abs(gap) < REACHABLE, rest))
-                line.append(f"step {s}: ball {p[2]:.2f} m ({sim_vz:+.1f} m/s), reference {z:.2f} m ({vz:+.1f} m/s)")
-                bounced = False
-            prev_vz, prev_z = vz, p[2]
+        steps = trials[t]
+        line = []
+        for k, i in enumerate(catches(steps, ids, ref)):
+            s, p, c, f = steps[i][:4]
+            z, vz, _, _ = ref[(ids[c], f)]
+            prev = steps[i - 1][1] if i > 0 and steps[i - 1][0] == s - 1 else None
+            sim_vz = (p[2] - prev[2]) * fps[ids[c]] if prev else float("nan")
+            gap = p[2] - z
+            rest = p[2] < 0.13 and abs(sim_vz) < 0.2
+            per_catch.setdefault(k, []).append((gap, abs(gap) < REACHABLE, rest))
+            line.append(f"step {s}: ball {p[2]:.2f} m ({sim_vz:+.1f} m/s), reference {z:.2f} m ({vz:+.1f} m/s)")
         if verbose:
             print(f"trial {t}: " + "; ".join(line))
     for k in sorted(per_catch):

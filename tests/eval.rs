@@ -171,6 +171,27 @@ fn eval_gives_the_share_of_trials_standing_from_each_trials_first_fall() {
         .unwrap()
         .as_primitive::<UInt32Type>();
     let r = skillaug::table::io::read_parquet(&out.join("eval_rollouts.parquet")).unwrap();
+    // every recorded step of a ball skill says how near a hand came to the
+    // ball and whether one touched it; a touching hand body's origin lies
+    // within the ball's radius (0.12 m) and its own collider's reach
+    let steps_read = skillaug::table::rollout::read(&out.join("eval_rollouts.parquet")).unwrap();
+    assert_eq!(steps_read.len(), r.rows());
+    let mut touched = 0;
+    for s in &steps_read {
+        let d = s.hand_ball_distance.expect("a DF step has a ball");
+        assert!(d.is_finite() && d > 0.0, "step {}: {d}", s.step);
+        if s.hand_ball_touch.expect("a DF step has a ball") {
+            touched += 1;
+            assert!(
+                d < 0.3,
+                "trial {} step {}: touching at {d} m",
+                s.trial,
+                s.step
+            );
+        }
+    }
+    // the trials start on the clip's dribble, hand on the ball
+    assert!(touched > 0, "no recorded step touches the ball");
     for i in 0..apex.len() {
         let (k, n) = (trial.value(i), steps.value(i));
         let mut want = f32::NAN;

@@ -237,6 +237,8 @@ impl Evaluator<'_> {
                         masked: rec.reference.is_none(),
                         sm_reward: env.sm_rewards()[e],
                         posture: rec.posture,
+                        hand_ball_distance: rec.hand_ball_distance,
+                        hand_ball_touch: rec.hand_ball_touch,
                     });
                 }
                 if r.terminated[e] || r.truncated[e] {

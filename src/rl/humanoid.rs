@@ -860,6 +860,13 @@ pub struct RecordedStep {
     /// Reference frame (clip, frame) the step was scored against; `None`
     /// for a masked step (no reward target).
     pub reference: Option<(u32, u32)>,
+    /// Smallest distance from a hand body's origin (wrist or finger joint)
+    /// to object 0's centre over the step's physics substeps, m; `None`
+    /// without an object ([`crate::sim::world::ContactReport`]).
+    pub hand_ball_distance: Option<f32>,
+    /// A hand body's collider touched object 0 at any physics substep of
+    /// the step (the `touch` contact rule); `None` without an object.
+    pub hand_ball_touch: Option<bool>,
 }
 
 /// What drives one environment's step: the policy's action (`act_dim`
@@ -1372,6 +1379,8 @@ impl Ctx<'_> {
             reference: tracked
                 .filter(|_| reference.is_some())
                 .and_then(|(st, _)| st.ref_clip.zip(st.ref_frame)),
+            hand_ball_distance: contacts.object_hand_distance.first().copied(),
+            hand_ball_touch: contacts.object_hands_any.first().copied(),
         });
         ep.prev_joint_vel = s.joint_vel;
         Outcome {

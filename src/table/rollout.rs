@@ -10,7 +10,7 @@ use super::ColumnSpec;
 use crate::motion::state::Posture;
 use anyhow::{anyhow, Result};
 use arrow::array::{Array, AsArray};
-use arrow::datatypes::Float64Type;
+use arrow::datatypes::{Float32Type, Float64Type};
 use arrow::record_batch::RecordBatch;
 use std::path::Path;
 
@@ -36,6 +36,13 @@ pub struct RolloutStep {
     pub sm_reward: Option<f64>,
     /// Simulated posture after the step.
     pub posture: Posture,
+    /// Smallest distance from a hand body's origin to object 0's centre
+    /// over the step's physics substeps, m (None: no object, or a table
+    /// written before the column existed).
+    pub hand_ball_distance: Option<f32>,
+    /// A hand body touched object 0 at any physics substep of the step
+    /// (None: no object, or an older table).
+    pub hand_ball_touch: Option<bool>,
 }
 
 impl TableRow for RolloutStep {
@@ -57,6 +64,8 @@ impl TableRow for RolloutStep {
             Column::new("joint_rot", "[J*3] simulated joint exp-maps, rad", |r: &R| r.posture.joint_rot.clone()),
             Column::new("obj_pos", "[O*3] simulated object positions, m", |r: &R| r.posture.obj_pos.clone()),
             Column::new("obj_rot", "[O*4] simulated object rotations (x, y, z, w)", |r: &R| r.posture.obj_rot.clone()),
+            Column::new("hand_ball_distance", "smallest distance from a hand body's origin (wrist or finger joint) to object 0's centre over the step's physics substeps, m; null without an object", |r: &R| r.hand_ball_distance),
+            Column::new("hand_ball_touch", "a hand body's collider touched object 0 at any physics substep of the step; null without an object", |r: &R| r.hand_ball_touch),
         ]
     }
 }
@@ -85,6 +94,33 @@ pub fn read(path: &Path) -> Result<Vec<RolloutStep>> {
         let u = |name: &str| opt_u32s(b, name, path);
         let (trial, step, rc, rf) = (u("trial")?, u("step")?, u("ref_clip")?, u("ref_frame")?);
         let masked = bools(b, "masked", path)?;
+        // optional: tables written before these columns existed lack them
+        let distance = match b.column_by_name("hand_ball_distance") {
+            Some(a) => Some(
+                a.as_primitive_opt::<Float32Type>()
+                    .ok_or_else(|| {
+                        anyhow!(
+                            "{}: column `hand_ball_distance` is not Float32",
+                            path.display()
+                        )
+                    })?
+                    .clone(),
+            ),
+            None => None,
+        };
+        let touch = match b.column_by_name("hand_ball_touch") {
+            Some(a) => Some(
+                a.as_boolean_opt()
+                    .ok_or_else(|| {
+                        anyhow!(
+                            "{}: column `hand_ball_touch` is not Boolean",
+                            path.display()
+                        )
+                    })?
+                    .clone(),
+            ),
+            None => None,
+        };
         let sm = col(b, "sm_reward", path)?
             .as_primitive_opt::<Float64Type>()
             .ok_or_else(|| anyhow!("{}: column `sm_reward` is not Float64", path.display()))?
@@ -101,6 +137,12 @@ pub fn read(path: &Path) -> Result<Vec<RolloutStep>> {
                 masked: masked[i],
                 sm_reward: sm.is_valid(i).then(|| sm.value(i)),
                 posture: posture_row(b, path, i)?.ok_or_else(|| bad("root_pos"))?,
+                hand_ball_distance: distance
+                    .as_ref()
+                    .and_then(|a| a.is_valid(i).then(|| a.value(i))),
+                hand_ball_touch: touch
+                    .as_ref()
+                    .and_then(|a| a.is_valid(i).then(|| a.value(i))),
             });
         }
     }

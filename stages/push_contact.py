@@ -1,0 +1,108 @@
+#!/usr/bin/env python3
+"""Whether the simulated hand meets and pushes the ball after each catch.
+
+Usage: python3 stages/push_contact.py RUN_FOLDER EVAL_FOLDER [-v]
+
+RUN_FOLDER is the `skillaug ingest` output the policy was trained on,
+EVAL_FOLDER a `skillaug eval --record N` output whose eval_rollouts.parquet
+has the `hand_ball_distance` and `hand_ball_touch` columns (recorded by a
+skillaug that writes them).
+
+For every **catch** of a recorded SR trial (the step whose reference frame
+is the first, after the reference's ball has bounced, where a hand body of
+the clip is within 0.15 m of the clip's ball; `stages/catch_gap.py`) the
+script follows the trial until the **push is over**: the first later step
+at which the simulated ball is falling below 0.5 m (it then falls freely
+to the floor), or the next catch, or the trial's end. Over those steps it
+reads:
+
+- touch: the share of steps at which a hand body's collider touched the
+  ball at some physics substep, and whether any step did;
+- the smallest distance of a hand body's origin to the ball's centre;
+- the work done on the ball per unit mass, J/kg: the change of
+  E = g z + |v|^2 / 2 from the catch to the push's end (velocities by
+  backward differences of the recorded positions, at the clip's rate). A
+  free flight keeps E; a push adds to it; a hand that rides the ball
+  without pushing takes from it. The reference's ball over the same
+  reference frames (backward differences of the clip's positions) gives
+  the clip's own figure.
+
+It prints, per catch (first, second, ...), the trials that reach it, the
+share with any touch, the mean share of touching steps, the median
+smallest distance, and the mean work done on the simulated and on the
+reference ball. With `-v`, every trial's catches. Needs pyarrow only.
+"""
+import statistics
+import sys
+
+from catch_gap import catches, load
+
+G = 9.81  # m/s^2
+FALLING_BELOW = 0.5  # m: a ball falling below this height is on its way to the floor
+
+
+def energy(p, q, rate):
+    """E per unit mass at position p, with velocity (p - q) * rate."""
+    v2 = sum(((a - b) * rate) ** 2 for a, b in zip(p[:3], q[:3]))
+    return G * p[2] + v2 / 2
+
+
+def main():
+    args = [a for a in sys.argv[1:] if a != "-v"]
+    verbose = "-v" in sys.argv[1:]
+    if len(args) != 2:
+        sys.exit(__doc__)
+    ids, fps, ref, trials = load(*args, extra=("hand_ball_distance", "hand_ball_touch"))
+    per_catch = {}
+    for t in sorted(trials):
+        steps = trials[t]
+        at = catches(steps, ids, ref)
+        line = []
+        for k, i in enumerate(at):
+            nxt = at[k + 1] if k + 1 < len(at) else len(steps)
+            end = i + 1
+            while end < nxt:
+                p, q = steps[end][1], steps[end - 1][1]
+                if p[2] < FALLING_BELOW and p[2] < q[2]:
+                    break
+                end += 1
+            end = min(end, nxt - 1)
+            window = steps[i : end + 1]
+            if end <= i or i == 0 or any(s[0] != steps[i][0] + j for j, s in enumerate(window)):
+                continue  # too short, or a gap in the recording
+            rate = fps[ids[steps[i][2]]]
+            touch = [bool(s[5]) for s in window]
+            dist = min(s[4] for s in window)
+            sim_work = energy(steps[end][1], steps[end - 1][1], rate) - energy(steps[i][1], steps[i - 1][1], rate)
+
+            def ref_energy(s):
+                key = (ids[s[2]], s[3]) if s[2] is not None else None
+                before = (key[0], key[1] - 1) if key else None
+                if key not in ref or before not in ref:
+                    return None
+                return energy(ref[key][3], ref[before][3], rate)
+
+            e0, e1 = ref_energy(steps[i]), ref_energy(steps[end])
+            ref_work = e1 - e0 if e0 is not None and e1 is not None else None
+            per_catch.setdefault(k, []).append((any(touch), sum(touch) / len(touch), dist, sim_work, ref_work))
+            line.append(
+                f"steps {steps[i][0]}-{steps[end][0]}: touching {sum(touch)}/{len(touch)}, nearest {dist:.3f} m, "
+                f"work {sim_work:+.1f} J/kg (reference {'-' if ref_work is None else f'{ref_work:+.1f}'})"
+            )
+        if verbose:
+            print(f"trial {t}: " + "; ".join(line))
+    for k in sorted(per_catch):
+        g = per_catch[k]
+        n = len(g)
+        refs = [x[4] for x in g if x[4] is not None]
+        ref_mean = f"{sum(refs) / len(refs):+.1f}" if refs else "-"
+        print(
+            f"catch {k + 1}: {n} trials, touched in {100 * sum(x[0] for x in g) / n:.0f} %, "
+            f"{100 * sum(x[1] for x in g) / n:.0f} % of the push's steps; nearest hand "
+            f"{statistics.median(x[2] for x in g):.3f} m (median); work on the ball "
+            f"{sum(x[3] for x in g) / n:+.1f} J/kg, the reference's {ref_mean}"
+        )
+
+
+if __name__ == "__main__":
+    main()
