@@ -39,7 +39,7 @@ REACHABLE = 0.15  # m, height gap counted as "where the clip's hand meets it"
 def load(run, ev, extra=()):
     """The clips' ids and rates, the reference per (clip name, frame):
     (ball height, ball vertical velocity, a clip hand within NEAR of the
-    ball, ball position), and the recorded SR trials: trial -> steps in
+    ball, ball position, root position, root rotation x, y, z, w), and the recorded SR trials: trial -> steps in
     order, each (step, ball position, clip index, frame) plus the columns
     named in `extra`."""
     for f in [f"{run}/clips.parquet", f"{run}/frames.parquet", f"{ev}/eval_rollouts.parquet"]:
@@ -49,14 +49,15 @@ def load(run, ev, extra=()):
     ids = clips["clip_id"]
     fps = dict(zip(ids, clips["fps"]))
     fr = pq.read_table(f"{run}/frames.parquet").select(
-        ["clip_id", "frame", "obj_pos", "obj_linvel", "body_pos"]
+        ["clip_id", "frame", "obj_pos", "obj_linvel", "body_pos", "root_pos", "root_rot"]
     ).to_pydict()
     ref = {}
-    for c, f, p, v, b in zip(*(fr[k] for k in ["clip_id", "frame", "obj_pos", "obj_linvel", "body_pos"])):
+    keys = ["clip_id", "frame", "obj_pos", "obj_linvel", "body_pos", "root_pos", "root_rot"]
+    for c, f, p, v, b, r, q in zip(*(fr[k] for k in keys)):
         if not p or not b:
             continue
         near = min(math.dist(p[:3], b[3 * k : 3 * k + 3]) for k in HAND_BODIES) < NEAR
-        ref[(c, f)] = (p[2], v[2], near, p[:3])
+        ref[(c, f)] = (p[2], v[2], near, p[:3], r, q)
     cols = ["metric", "trial", "step", "obj_pos", "ref_clip", "ref_frame", *extra]
     table = pq.read_table(f"{ev}/eval_rollouts.parquet")
     missing = [c for c in cols if c not in table.column_names]
@@ -84,7 +85,7 @@ def catches(steps, ids, ref):
             # a masked step or a missing frame: no reference to compare
             bounced, prev_vz = False, None
             continue
-        z, vz, near, _ = ref[key]
+        z, vz, near = ref[key][:3]
         if prev_vz is not None and prev_vz <= 0 < vz and z < BOUNCE_BELOW:
             bounced = True
         if bounced and near:
@@ -106,7 +107,7 @@ def main():
         line = []
         for k, i in enumerate(catches(steps, ids, ref)):
             s, p, c, f = steps[i][:4]
-            z, vz, _, _ = ref[(ids[c], f)]
+            z, vz = ref[(ids[c], f)][:2]
             prev = steps[i - 1][1] if i > 0 and steps[i - 1][0] == s - 1 else None
             sim_vz = (p[2] - prev[2]) * fps[ids[c]] if prev else float("nan")
             gap = p[2] - z

@@ -10,14 +10,18 @@ skillaug that writes them).
 
 For every **catch** of a recorded SR trial (the step whose reference frame
 is the first, after the reference's ball has bounced, where a hand body of
-the clip is within 0.15 m of the clip's ball; `stages/catch_gap.py`) the
-script follows the trial until the **push is over**: the first later step
-at which the simulated ball is falling below 0.5 m (it then falls freely
-to the floor), or the next catch, or the trial's end. Over those steps it
-reads:
+the clip is within 0.15 m of the clip's ball; `stages/catch_gap.py`) at
+which the character still stands (root above 0.5 m), the script follows
+the trial until the **push is over**: the first later step at which the
+simulated ball is falling below 0.5 m (it then falls freely to the
+floor), or the next catch, or the trial's end. It reads:
 
-- touch: the share of steps at which a hand body's collider touched the
-  ball at some physics substep, and whether any step did;
+- the horizontal miss at the catch: the ball's offset from the root in
+  the root's heading frame (`stages/ball_lead.py`) minus the clip frame's
+  own, about 0 while the ball comes back to where the clip's hand meets
+  it;
+- touch: whether a hand body's collider touched the ball at some physics
+  substep of any step until the push is over, and the share of such steps;
 - the smallest distance of a hand body's origin to the ball's centre;
 - the work done on the ball per unit mass, J/kg: the change of
   E = g z + |v|^2 / 2 from the catch to the push's end (velocities by
@@ -27,18 +31,22 @@ reads:
   reference frames (backward differences of the clip's positions) gives
   the clip's own figure.
 
-It prints, per catch (first, second, ...), the trials that reach it, the
-share with any touch, the mean share of touching steps, the median
-smallest distance, and the mean work done on the simulated and on the
-reference ball. With `-v`, every trial's catches. Needs pyarrow only.
+It prints, per catch (first, second, ...), the standing trials that reach
+it, the median horizontal miss, the share with any touch, the mean share
+of touching steps, the median smallest distance, and the mean work done
+on the simulated and on the reference ball. With `-v`, every trial's
+catches. Needs pyarrow only.
 """
+import math
 import statistics
 import sys
 
+from ball_lead import offset
 from catch_gap import catches, load
 
 G = 9.81  # m/s^2
 FALLING_BELOW = 0.5  # m: a ball falling below this height is on its way to the floor
+STANDING = 0.5  # m: a root above this height stands (the evaluation's fall rule)
 
 
 def energy(p, q, rate):
@@ -52,7 +60,7 @@ def main():
     verbose = "-v" in sys.argv[1:]
     if len(args) != 2:
         sys.exit(__doc__)
-    ids, fps, ref, trials = load(*args, extra=("hand_ball_distance", "hand_ball_touch"))
+    ids, fps, ref, trials = load(*args, extra=("hand_ball_distance", "hand_ball_touch", "root_pos", "root_rot"))
     per_catch = {}
     for t in sorted(trials):
         steps = trials[t]
@@ -84,10 +92,17 @@ def main():
 
             e0, e1 = ref_energy(steps[i]), ref_energy(steps[end])
             ref_work = e1 - e0 if e0 is not None and e1 is not None else None
-            per_catch.setdefault(k, []).append((any(touch), sum(touch) / len(touch), dist, sim_work, ref_work))
+            _, ball, c, f, _, _, root, rot = steps[i]
+            if root[2] <= STANDING:
+                continue  # fallen: no hand to meet the ball
+            r = ref[(ids[c], f)]
+            a, b = offset(root, rot, ball), offset(r[4], r[5], r[3])
+            miss = math.hypot(a[0] - b[0], a[1] - b[1])
+            per_catch.setdefault(k, []).append((any(touch), sum(touch) / len(touch), dist, sim_work, ref_work, miss))
             line.append(
                 f"steps {steps[i][0]}-{steps[end][0]}: touching {sum(touch)}/{len(touch)}, nearest {dist:.3f} m, "
-                f"work {sim_work:+.1f} J/kg (reference {'-' if ref_work is None else f'{ref_work:+.1f}'})"
+                f"work {sim_work:+.1f} J/kg (reference {'-' if ref_work is None else f'{ref_work:+.1f}'}), "
+                f"horizontal miss {miss:.2f} m"
             )
         if verbose:
             print(f"trial {t}: " + "; ".join(line))
@@ -97,7 +112,7 @@ def main():
         refs = [x[4] for x in g if x[4] is not None]
         ref_mean = f"{sum(refs) / len(refs):+.1f}" if refs else "-"
         print(
-            f"catch {k + 1}: {n} trials, touched in {100 * sum(x[0] for x in g) / n:.0f} %, "
+            f"catch {k + 1}: {n} standing trials, horizontal miss {statistics.median(x[5] for x in g):.2f} m (median), touched in {100 * sum(x[0] for x in g) / n:.0f} %, "
             f"{100 * sum(x[1] for x in g) / n:.0f} % of the push's steps; nearest hand "
             f"{statistics.median(x[2] for x in g):.3f} m (median); work on the ball "
             f"{sum(x[3] for x in g) / n:+.1f} J/kg, the reference's {ref_mean}"

@@ -153,6 +153,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.reference_hand=on-ball",
             "--set",
             "train.hand_follows_ball=true",
+            "--set",
+            "train.hand_follows_ball_from=catch",
         ],
     );
 }
@@ -1971,6 +1973,105 @@ fn a_hand_following_the_ball_moves_only_the_pushing_arm_and_chest_of_the_feed_fo
         &run,
         &["train.hand_follows_ball=true"],
         "train.hand_follows_ball moves the feed-forward targets of train.residual_action",
+    );
+}
+
+#[test]
+fn a_hand_following_the_ball_from_the_catch_starts_where_the_clip_hand_meets_the_rising_ball() {
+    // `train.hand_follows_ball_from = "catch"`: every DF window keeps its
+    // release, hand, chain and height, and its full weight starts at the
+    // first frame of the ride before the push: the consecutive frames,
+    // after the previous window's release, with a hand body of the clip
+    // within 0.15 m of the ball. In DF `run` the ride of the second window
+    // starts at the first window's catch (frame 34, where the clip's hand
+    // meets the ball again after its bounce). At the start, the
+    // feed-forward differs from the push-only setting's exactly for the
+    // worlds whose next frame lies in a window's span with one setting and
+    // not the other (or at another weight); the setting alone is refused
+    let (dir, run) = ingested("ballplay");
+    let base = TrainConfig {
+        skills: vec!["run".into()],
+        residual_action: true,
+        hand_follows_ball: true,
+        ..TrainConfig::default()
+    };
+    let from_catch = TrainConfig {
+        hand_follows_ball_from: skillaug::sim::hand_path::FollowFrom::Catch,
+        ..base.clone()
+    };
+    let (push, catch) = (setup_for(&run, &base), setup_for(&run, &from_catch));
+    let starts: Vec<usize> = catch.ball_hands.iter().map(|h| h.start).collect();
+    assert_eq!(starts, [35, 0, 34]);
+    let hand = skillaug::sim::world::hand_bodies(&catch.model);
+    let near = |c: usize, i: usize| {
+        let s = catch.lib.frames[c].state(i).unwrap();
+        (0..hand.len()).filter(|b| hand[*b]).any(|b| {
+            let d: f64 = (0..3)
+                .map(|k| (s.body_pos[3 * b + k] as f64 - s.obj_pos[k] as f64).powi(2))
+                .sum();
+            d.sqrt() < 0.15
+        })
+    };
+    for (k, (p, c)) in push.ball_hands.iter().zip(&catch.ball_hands).enumerate() {
+        assert_eq!(
+            (p.clip, p.release, p.body, p.side, &p.chain, p.height, p.blend),
+            (c.clip, c.release, c.body, c.side, &c.chain, c.height, c.blend),
+            "window {k}"
+        );
+        assert!((c.start..p.start).all(|i| near(c.clip, i)), "window {k}");
+        let lower = if k == 2 {
+            push.ball_hands[1].release + 1
+        } else {
+            0
+        };
+        assert!(c.start == lower || !near(c.clip, c.start - 1), "window {k}");
+        assert_eq!(c.first, c.start.saturating_sub(6).max(lower), "window {k}");
+        assert_eq!(c.end, p.end, "window {k}");
+        assert_eq!(c.weight(c.start), 1.0);
+    }
+    // the second window's ride starts at the first window's catch
+    let hp = skillaug::sim::push::PushConfig::default();
+    let windows = skillaug::sim::push::push_windows(
+        &catch.lib.frames[catch.ball_hands[1].clip],
+        &hand,
+        hp.hand_radius,
+        hp.min_frames,
+    );
+    assert_eq!(windows[0].catch, Some(catch.ball_hands[2].start));
+    let n = 64;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let env_push = environment(&push, &base, None, n, &[], &mut rng).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let env_catch = environment(&catch, &from_catch, None, n, &[], &mut rng).unwrap();
+    let (recs_p, recs_c) = (env_push.snapshot(), env_catch.snapshot());
+    let weight = |hands: &[skillaug::sim::hand_path::BallHand], c: usize, f: usize| {
+        hands
+            .iter()
+            .find(|h| h.clip == c && h.first <= f && f <= h.end)
+            .map_or(0.0, |h| h.weight(f))
+    };
+    let mut differ = 0;
+    for e in 0..n {
+        assert_eq!(recs_p[e].traj.steps, recs_c[e].traj.steps, "world {e}");
+        let next = recs_c[e].traj.steps[1];
+        let (c, f) = (
+            next.ref_clip.unwrap() as usize,
+            next.ref_frame.unwrap() as usize,
+        );
+        let same = weight(&push.ball_hands, c, f) == weight(&catch.ball_hands, c, f);
+        let (a, b) = (env_push.feed_forward_of(e), env_catch.feed_forward_of(e));
+        assert_eq!(a == b, same, "world {e}: frame {f} of clip {c}");
+        differ += usize::from(!same);
+    }
+    assert!(differ > 0, "no world starts in a ride");
+    let run = dir.path().join("run");
+    refused(
+        &run,
+        &[
+            "train.residual_action=true",
+            "train.hand_follows_ball_from=\"catch\"",
+        ],
+        "train.hand_follows_ball_from = \"catch\" says where the hand of train.hand_follows_ball",
     );
 }
 

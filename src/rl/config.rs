@@ -405,6 +405,18 @@ pub struct TrainConfig {
     /// in the paper or the reference code. Not written when off.
     #[serde(skip_serializing_if = "is_false")]
     pub hand_follows_ball: bool,
+    /// Where in each push window `hand_follows_ball` starts to follow the
+    /// ball: `"push"` (the window's first frame, the ball descending under
+    /// the hand) or `"catch"` (the first frame of the clip's ride before
+    /// the push, where its hand meets the rising ball;
+    /// [`crate::sim::hand_path::FollowFrom`]). Needs `hand_follows_ball`.
+    /// Not written when `"push"`.
+    #[serde(skip_serializing_if = "is_follow_push")]
+    pub hand_follows_ball_from: crate::sim::hand_path::FollowFrom,
+}
+
+fn is_follow_push(f: &crate::sim::hand_path::FollowFrom) -> bool {
+    *f == crate::sim::hand_path::FollowFrom::Push
 }
 
 fn is_captured(b: &crate::sim::ball_path::ReferenceBall) -> bool {
@@ -612,6 +624,7 @@ impl Default for TrainConfig {
             reference_ball: crate::sim::ball_path::ReferenceBall::Captured,
             reference_hand: crate::sim::hand_path::ReferenceHand::Captured,
             hand_follows_ball: false,
+            hand_follows_ball_from: crate::sim::hand_path::FollowFrom::Push,
         }
     }
 }
@@ -737,6 +750,16 @@ impl crate::config::Validate for TrainConfig {
             anyhow::bail!(
                 "{stage}.hand_follows_ball moves the feed-forward targets of \
                  {stage}.residual_action: set {stage}.residual_action = true, or hand_follows_ball = false"
+            );
+        }
+        if self.hand_follows_ball_from != crate::sim::hand_path::FollowFrom::Push
+            && !self.hand_follows_ball
+        {
+            anyhow::bail!(
+                "{stage}.hand_follows_ball_from = \"{}\" says where the hand of \
+                 {stage}.hand_follows_ball starts to follow the ball, and that setting is off: \
+                 set {stage}.hand_follows_ball = true, or leave hand_follows_ball_from at \"push\"",
+                self.hand_follows_ball_from.name()
             );
         }
         if self.push_feed_forward != PushJoints::Off && !self.residual_action {

@@ -323,13 +323,14 @@ pub fn ball_hands(
         );
     }
     let push = crate::sim::push::PushConfig::default();
-    let hands = crate::sim::hand_path::ball_hands(
+    let hands = crate::sim::hand_path::ball_hands_from(
         lib,
         clips,
         model,
         push.hand_radius,
         push.min_frames,
         crate::sim::hand_path::BLEND_S,
+        cfg.hand_follows_ball_from,
     )?;
     if hands.is_empty() {
         bail!(

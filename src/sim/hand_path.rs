@@ -39,7 +39,7 @@
 //! not the clip's ([`crate::rl::humanoid::EnvConfig::ball_hand`]).
 
 use super::mjcf::{body_poses, Model};
-use super::push::push_windows;
+use super::push::{hand_near, push_windows};
 use super::world::hand_bodies;
 use crate::motion::clip::{backward_diff, ClipFrames};
 use crate::motion::quat::norm;
@@ -67,6 +67,32 @@ impl ReferenceHand {
         match self {
             ReferenceHand::Captured => "captured",
             ReferenceHand::OnBall => "on-ball",
+        }
+    }
+}
+
+/// Where the online hand of `train.hand_follows_ball` starts following
+/// the simulated ball in each push window (`train.hand_follows_ball_from`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FollowFrom {
+    /// At the push window's first frame (the ball descending under the
+    /// hand).
+    #[default]
+    Push,
+    /// At the first frame of the clip's **ride** before the push: the run
+    /// of consecutive frames up to the window's first during which a hand
+    /// body of the clip is within the window's hand radius of the ball
+    /// (in a dribble, from the catch of the rising ball after its bounce).
+    Catch,
+}
+
+impl FollowFrom {
+    /// The setting's value as written in a recipe.
+    pub fn name(self) -> &'static str {
+        match self {
+            FollowFrom::Push => "push",
+            FollowFrom::Catch => "catch",
         }
     }
 }
@@ -459,6 +485,36 @@ pub fn ball_hands(
     min_frames: usize,
     blend_s: f64,
 ) -> Result<Vec<BallHand>> {
+    ball_hands_from(
+        lib,
+        clips,
+        model,
+        hand_radius,
+        min_frames,
+        blend_s,
+        FollowFrom::Push,
+    )
+}
+
+/// As [`ball_hands`], with each window's full weight starting where
+/// `from` says: at the push window's first frame ([`FollowFrom::Push`],
+/// [`ball_hands`]'s windows) or at the first frame of the clip's ride
+/// before it ([`FollowFrom::Catch`]: `start` moves back over the
+/// consecutive frames, after the previous window's release, with a hand
+/// body within `hand_radius` m of the ball; the hand body, its side and
+/// its height over the ball stay those of the push's first frame).
+///
+/// # Errors
+/// As [`ball_hands`].
+pub fn ball_hands_from(
+    lib: &MotionLib,
+    clips: &[usize],
+    model: &Model,
+    hand_radius: f64,
+    min_frames: usize,
+    blend_s: f64,
+    from: FollowFrom,
+) -> Result<Vec<BallHand>> {
     let hand = hand_bodies(model);
     let mut out = Vec::new();
     for &clip in clips {
@@ -484,11 +540,20 @@ pub fn ball_hands(
                 windows[k - 1].release + 1
             };
             let h = window_hand(f, model, &hand, w.start)?;
+            let mut start = w.start;
+            if from == FollowFrom::Catch {
+                while start > lower
+                    && f.state(start - 1)
+                        .is_some_and(|s| s.obj_pos.len() >= 3 && hand_near(&s, &hand, hand_radius))
+                {
+                    start -= 1;
+                }
+            }
             out.push(BallHand {
                 clip,
-                start: w.start,
+                start,
                 release: w.release,
-                first: w.start.saturating_sub(blend).max(lower),
+                first: start.saturating_sub(blend).max(lower),
                 end: (w.release + blend).min(limit.saturating_sub(1)),
                 blend,
                 side: h.side,
