@@ -323,7 +323,7 @@ pub fn ball_hands(
         );
     }
     let push = crate::sim::push::PushConfig::default();
-    let hands = crate::sim::hand_path::ball_hands_from(
+    let hands = crate::sim::hand_path::ball_hands(
         lib,
         clips,
         model,

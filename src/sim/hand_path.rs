@@ -154,7 +154,15 @@ pub fn repair_hands(
     // every window is found on the clip as it comes: a window's repair
     // stops before the next window's first frame, the only frame the next
     // window's hand is chosen at
-    let windows = ball_hands(lib, clips, model, hand_radius, min_frames, blend_s)?;
+    let windows = ball_hands(
+        lib,
+        clips,
+        model,
+        hand_radius,
+        min_frames,
+        blend_s,
+        FollowFrom::Push,
+    )?;
     let mut out = Vec::new();
     for h in &windows {
         let mut r = repair_window(&mut lib.frames[h.clip], model, h);
@@ -470,43 +478,20 @@ impl BallHand {
 /// [`super::push::push_windows`] with `hand_radius` m and `min_frames`,
 /// each with the hand that pushes and its blend of `blend_s` s, bounded
 /// so that it never reaches the next window's first frame or the previous
-/// window's release. Clips without an
-/// object have none. In clip and frame order.
+/// window's release. Each window's full weight starts where `from` says:
+/// at the push window's first frame ([`FollowFrom::Push`]) or at the
+/// first frame of the clip's ride before it ([`FollowFrom::Catch`]:
+/// `start` moves back over the consecutive frames, after the previous
+/// window's release, with a hand body within `hand_radius` m of the
+/// ball; the hand body, its side and its height over the ball stay those
+/// of the push's first frame). Clips without an object have none. In
+/// clip and frame order.
 ///
 /// # Errors
 /// A model without one of the bodies of the solved joints (`L_`/`R_`
 /// thorax, shoulder, elbow, wrist; chest), or a clip whose bodies are not
 /// the model's, naming the body or the clip.
 pub fn ball_hands(
-    lib: &MotionLib,
-    clips: &[usize],
-    model: &Model,
-    hand_radius: f64,
-    min_frames: usize,
-    blend_s: f64,
-) -> Result<Vec<BallHand>> {
-    ball_hands_from(
-        lib,
-        clips,
-        model,
-        hand_radius,
-        min_frames,
-        blend_s,
-        FollowFrom::Push,
-    )
-}
-
-/// As [`ball_hands`], with each window's full weight starting where
-/// `from` says: at the push window's first frame ([`FollowFrom::Push`],
-/// [`ball_hands`]'s windows) or at the first frame of the clip's ride
-/// before it ([`FollowFrom::Catch`]: `start` moves back over the
-/// consecutive frames, after the previous window's release, with a hand
-/// body within `hand_radius` m of the ball; the hand body, its side and
-/// its height over the ball stay those of the push's first frame).
-///
-/// # Errors
-/// As [`ball_hands`].
-pub fn ball_hands_from(
     lib: &MotionLib,
     clips: &[usize],
     model: &Model,
