@@ -119,7 +119,8 @@ const H: f64 = 1e-4;
 pub struct HandRepair {
     /// Clip index in the library.
     pub clip: usize,
-    /// The window's first frame.
+    /// The first frame of full weight: the push window's first frame, or
+    /// the first frame of the ride before it ([`FollowFrom::Catch`]).
     pub start: usize,
     /// The release frame (the last frame held on the ball).
     pub release: usize,
