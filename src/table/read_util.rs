@@ -70,6 +70,34 @@ pub fn opt_u32s(b: &RecordBatch, name: &str, path: &Path) -> Result<Vec<Option<u
         .collect())
 }
 
+/// A Float32 column with its nulls; all `None` when the batch lacks the
+/// column (one added after tables were written with this schema version).
+pub fn opt_f32s_if_present(b: &RecordBatch, name: &str, path: &Path) -> Result<Vec<Option<f32>>> {
+    let Some(a) = b.column_by_name(name) else {
+        return Ok(vec![None; b.num_rows()]);
+    };
+    let a = a
+        .as_primitive_opt::<Float32Type>()
+        .ok_or_else(|| anyhow!("{}: column `{name}` is not Float32", path.display()))?;
+    Ok((0..a.len())
+        .map(|i| a.is_valid(i).then(|| a.value(i)))
+        .collect())
+}
+
+/// A Boolean column with its nulls; all `None` when the batch lacks the
+/// column (as [`opt_f32s_if_present`]).
+pub fn opt_bools_if_present(b: &RecordBatch, name: &str, path: &Path) -> Result<Vec<Option<bool>>> {
+    let Some(a) = b.column_by_name(name) else {
+        return Ok(vec![None; b.num_rows()]);
+    };
+    let a = a
+        .as_boolean_opt()
+        .ok_or_else(|| anyhow!("{}: column `{name}` is not Boolean", path.display()))?;
+    Ok((0..a.len())
+        .map(|i| a.is_valid(i).then(|| a.value(i)))
+        .collect())
+}
+
 /// A Boolean column (nulls as false).
 pub fn bools(b: &RecordBatch, name: &str, path: &Path) -> Result<Vec<bool>> {
     let a = col(b, name, path)?

@@ -5,12 +5,14 @@
 //! reference.
 
 use super::columns::{specs, Column, TableRow};
-use super::read_util::{bools, check_table, col, opt_u32s, posture_row, strs};
+use super::read_util::{
+    bools, check_table, col, opt_bools_if_present, opt_f32s_if_present, opt_u32s, posture_row, strs,
+};
 use super::ColumnSpec;
 use crate::motion::state::Posture;
 use anyhow::{anyhow, Result};
 use arrow::array::{Array, AsArray};
-use arrow::datatypes::{Float32Type, Float64Type};
+use arrow::datatypes::Float64Type;
 use arrow::record_batch::RecordBatch;
 use std::path::Path;
 
@@ -94,33 +96,9 @@ pub fn read(path: &Path) -> Result<Vec<RolloutStep>> {
         let u = |name: &str| opt_u32s(b, name, path);
         let (trial, step, rc, rf) = (u("trial")?, u("step")?, u("ref_clip")?, u("ref_frame")?);
         let masked = bools(b, "masked", path)?;
-        // optional: tables written before these columns existed lack them
-        let distance = match b.column_by_name("hand_ball_distance") {
-            Some(a) => Some(
-                a.as_primitive_opt::<Float32Type>()
-                    .ok_or_else(|| {
-                        anyhow!(
-                            "{}: column `hand_ball_distance` is not Float32",
-                            path.display()
-                        )
-                    })?
-                    .clone(),
-            ),
-            None => None,
-        };
-        let touch = match b.column_by_name("hand_ball_touch") {
-            Some(a) => Some(
-                a.as_boolean_opt()
-                    .ok_or_else(|| {
-                        anyhow!(
-                            "{}: column `hand_ball_touch` is not Boolean",
-                            path.display()
-                        )
-                    })?
-                    .clone(),
-            ),
-            None => None,
-        };
+        // tables written before these columns existed lack them
+        let distance = opt_f32s_if_present(b, "hand_ball_distance", path)?;
+        let touch = opt_bools_if_present(b, "hand_ball_touch", path)?;
         let sm = col(b, "sm_reward", path)?
             .as_primitive_opt::<Float64Type>()
             .ok_or_else(|| anyhow!("{}: column `sm_reward` is not Float64", path.display()))?
@@ -137,12 +115,8 @@ pub fn read(path: &Path) -> Result<Vec<RolloutStep>> {
                 masked: masked[i],
                 sm_reward: sm.is_valid(i).then(|| sm.value(i)),
                 posture: posture_row(b, path, i)?.ok_or_else(|| bad("root_pos"))?,
-                hand_ball_distance: distance
-                    .as_ref()
-                    .and_then(|a| a.is_valid(i).then(|| a.value(i))),
-                hand_ball_touch: touch
-                    .as_ref()
-                    .and_then(|a| a.is_valid(i).then(|| a.value(i))),
+                hand_ball_distance: distance[i],
+                hand_ball_touch: touch[i],
             });
         }
     }
