@@ -37,14 +37,14 @@ REACHABLE = 0.15  # m, height gap counted as "where the clip's hand meets it"
 
 
 def load(run, ev, extra=()):
-    """The clips' ids and rates, the reference per (clip name, frame):
-    (ball height, ball vertical velocity, a clip hand within NEAR of the
-    ball, ball position, root position, root rotation x, y, z, w), and the recorded SR trials: trial -> steps in
-    order, each (step, ball position, clip index, frame) plus the columns
-    named in `extra`."""
+    """The clips' ids and rates, the reference per (clip id, frame): (ball
+    height, ball vertical velocity, a clip hand within NEAR of the ball,
+    ball position, root position, root rotation x, y, z, w), and the
+    recorded SR trials: trial -> steps in order, each (step, ball
+    position, clip index, frame) plus the columns named in `extra`."""
     for f in [f"{run}/clips.parquet", f"{run}/frames.parquet", f"{ev}/eval_rollouts.parquet"]:
         if not os.path.isfile(f):
-            sys.exit(f"{f} not found (RUN_FOLDER: an ingest output; EVAL_FOLDER: an eval --record output)")
+            sys.exit(f"{os.path.basename(sys.argv[0])}: {f} not found (RUN_FOLDER: an ingest output; EVAL_FOLDER: an eval --record output)")
     clips = pq.read_table(f"{run}/clips.parquet").to_pydict()
     ids = clips["clip_id"]
     fps = dict(zip(ids, clips["fps"]))
@@ -62,7 +62,7 @@ def load(run, ev, extra=()):
     table = pq.read_table(f"{ev}/eval_rollouts.parquet")
     missing = [c for c in cols if c not in table.column_names]
     if missing:
-        sys.exit(f"{ev}/eval_rollouts.parquet lacks {', '.join(missing)} (record it again with this skillaug)")
+        sys.exit(f"{os.path.basename(sys.argv[0])}: {ev}/eval_rollouts.parquet lacks {', '.join(missing)} (record it again with this skillaug)")
     ro = table.select(cols).to_pydict()
     trials = {}
     for row in zip(*(ro[k] for k in cols)):

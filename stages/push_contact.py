@@ -41,18 +41,40 @@ import math
 import statistics
 import sys
 
+from ball_energy import energy
 from ball_lead import offset
 from catch_gap import catches, load
 
-G = 9.81  # m/s^2
 FALLING_BELOW = 0.5  # m: a ball falling below this height is on its way to the floor
 STANDING = 0.5  # m: a root above this height stands (the evaluation's fall rule)
 
 
-def energy(p, q, rate):
-    """E per unit mass at position p, with velocity (p - q) * rate."""
-    v2 = sum(((a - b) * rate) ** 2 for a, b in zip(p[:3], q[:3]))
-    return G * p[2] + v2 / 2
+def moving_energy(p, q, rate):
+    """E per unit mass at ball position p, with the backward-difference
+    velocity (p - q) * rate."""
+    return energy(p, [(a - b) * rate for a, b in zip(p[:3], q[:3])])
+
+
+def clip_energy(ref, ids, step, rate):
+    """The clip ball's E at a recorded step's reference frame, from the
+    frame and the one before it; None where either is missing."""
+    c, f = step[2], step[3]
+    if c is None or (ids[c], f) not in ref or (ids[c], f - 1) not in ref:
+        return None
+    return moving_energy(ref[(ids[c], f)][3], ref[(ids[c], f - 1)][3], rate)
+
+
+def push_end(steps, i, nxt):
+    """The last step of the push that starts at catch position i: the first
+    later step whose ball falls below FALLING_BELOW, else the step before
+    the next catch (position nxt) or the trial's end."""
+    end = i + 1
+    while end < nxt:
+        p, q = steps[end][1], steps[end - 1][1]
+        if p[2] < FALLING_BELOW and p[2] < q[2]:
+            return end
+        end += 1
+    return nxt - 1
 
 
 def main():
@@ -67,34 +89,21 @@ def main():
         at = catches(steps, ids, ref)
         line = []
         for k, i in enumerate(at):
-            nxt = at[k + 1] if k + 1 < len(at) else len(steps)
-            end = i + 1
-            while end < nxt:
-                p, q = steps[end][1], steps[end - 1][1]
-                if p[2] < FALLING_BELOW and p[2] < q[2]:
-                    break
-                end += 1
-            end = min(end, nxt - 1)
-            window = steps[i : end + 1]
-            if end <= i or i == 0 or any(s[0] != steps[i][0] + j for j, s in enumerate(window)):
-                continue  # too short, or a gap in the recording
-            rate = fps[ids[steps[i][2]]]
-            touch = [bool(s[5]) for s in window]
-            dist = min(s[4] for s in window)
-            sim_work = energy(steps[end][1], steps[end - 1][1], rate) - energy(steps[i][1], steps[i - 1][1], rate)
-
-            def ref_energy(s):
-                key = (ids[s[2]], s[3]) if s[2] is not None else None
-                before = (key[0], key[1] - 1) if key else None
-                if key not in ref or before not in ref:
-                    return None
-                return energy(ref[key][3], ref[before][3], rate)
-
-            e0, e1 = ref_energy(steps[i]), ref_energy(steps[end])
-            ref_work = e1 - e0 if e0 is not None and e1 is not None else None
             _, ball, c, f, _, _, root, rot = steps[i]
             if root[2] <= STANDING:
                 continue  # fallen: no hand to meet the ball
+            end = push_end(steps, i, at[k + 1] if k + 1 < len(at) else len(steps))
+            window = steps[i : end + 1]
+            if end <= i or i == 0 or any(s[0] != steps[i][0] + j for j, s in enumerate(window)):
+                continue  # too short, or a gap in the recording
+            rate = fps[ids[c]]
+            touch = [bool(s[5]) for s in window]
+            dist = min(s[4] for s in window)
+            sim_work = moving_energy(steps[end][1], steps[end - 1][1], rate) - moving_energy(
+                ball, steps[i - 1][1], rate
+            )
+            e0, e1 = clip_energy(ref, ids, steps[i], rate), clip_energy(ref, ids, steps[end], rate)
+            ref_work = e1 - e0 if e0 is not None and e1 is not None else None
             r = ref[(ids[c], f)]
             a, b = offset(root, rot, ball), offset(r[4], r[5], r[3])
             miss = math.hypot(a[0] - b[0], a[1] - b[1])
