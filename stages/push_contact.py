@@ -91,7 +91,10 @@ def main():
         for k, i in enumerate(at):
             _, ball, c, f, _, _, root, rot = steps[i]
             if root[2] <= STANDING:
-                continue  # fallen: no hand to meet the ball
+                # fallen: no hand to meet the ball
+                per_catch.setdefault(k, [])
+                line.append(f"step {steps[i][0]}: fallen")
+                continue
             end = push_end(steps, i, at[k + 1] if k + 1 < len(at) else len(steps))
             window = steps[i : end + 1]
             if end <= i or i == 0 or any(s[0] != steps[i][0] + j for j, s in enumerate(window)):
@@ -118,6 +121,9 @@ def main():
     for k in sorted(per_catch):
         g = per_catch[k]
         n = len(g)
+        if not g:
+            print(f"catch {k + 1}: no trial standing")
+            continue
         refs = [x[4] for x in g if x[4] is not None]
         ref_mean = f"{sum(refs) / len(refs):+.1f}" if refs else "-"
         print(

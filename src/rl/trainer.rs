@@ -1582,7 +1582,10 @@ impl<'a> Trainer<'a> {
             ));
         }
         if cfg.hand_follows_ball {
-            on.push("hand_follows_ball (the pushing hand's targets on the simulated ball)".into());
+            on.push(format!(
+                "hand_follows_ball from the {} (the pushing hand's targets on the simulated ball)",
+                cfg.hand_follows_ball_from.name()
+            ));
         }
         if cfg.reference_ball != crate::sim::ball_path::ReferenceBall::Captured {
             on.push(format!(
