@@ -361,20 +361,23 @@ fn a_policy_that_needs_its_reference_gets_it_continued_in_every_trial_cell() {
 }
 
 #[test]
-fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them() {
+fn a_policy_trained_with_a_stiffer_drive_another_ball_or_fresh_contacts_is_evaluated_with_them() {
     // `train.pd_stiffness_scale`, `train.object_density`,
-    // `train.ball_inertia` and `train.object_angular_damping` travel in
-    // policy.meta.json and the evaluation builds its worlds with them: the
-    // same weights, evaluated once as trained (kp x 4, a 0.6 kg ball with
-    // a shell's inertia whose spin dies away) and once with each setting
-    // taken out of the description (the model's kp, the ball's own
-    // 7.24 kg, a solid ball, its own damping), give other trials
+    // `train.ball_inertia`, `train.object_angular_damping` and
+    // `train.contact_recycling` travel in policy.meta.json and the
+    // evaluation builds its worlds with them: the same weights, evaluated
+    // once as trained (kp x 4, a 0.6 kg ball with a shell's inertia whose
+    // spin dies away, contacts recomputed at every physics step) and once
+    // with each setting taken out of the description (the model's kp, the
+    // ball's own 7.24 kg, a solid ball, its own damping, rapier's
+    // recycling), give other trials
     let (dir, run, pol) = df_policy(&[
         "train.residual_action=true",
         "train.pd_stiffness_scale=4",
         "train.object_density=83",
         "train.ball_inertia=shell",
         "train.object_angular_damping=10",
+        "train.contact_recycling=false",
     ]);
     let from = run.to_str().unwrap();
     let (meta_path, meta) = policy_meta(&pol);
@@ -382,6 +385,7 @@ fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them(
     assert_eq!(meta["train"]["object_density"], 83.0);
     assert_eq!(meta["train"]["ball_inertia"], "shell");
     assert_eq!(meta["train"]["object_angular_damping"], 10.0);
+    assert_eq!(meta["train"]["contact_recycling"], false);
     let sets = SHORT_SR;
     let stiff = dir.path().join("ev-stiff");
     eval(from, &pol, &stiff, &sets);
@@ -396,6 +400,7 @@ fn a_policy_trained_with_a_stiffer_drive_or_another_ball_is_evaluated_with_them(
         "object_density",
         "ball_inertia",
         "object_angular_damping",
+        "contact_recycling",
     ] {
         let mut m = meta.clone();
         m["train"].as_object_mut().unwrap().remove(key);

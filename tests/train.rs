@@ -132,6 +132,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "--set",
             "train.pd_stiffness_scale=2",
             "--set",
+            "train.contact_recycling=false",
+            "--set",
             "train.ball_clock_frames=8",
             "--set",
             "train.sim_start_prob=0.5",

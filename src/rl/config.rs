@@ -290,6 +290,16 @@ pub struct TrainConfig {
     /// reference code: a stronger character. Not written when 1.
     #[serde(skip_serializing_if = "is_one_f64")]
     pub pd_stiffness_scale: f64,
+    /// rapier's contact recycling in training and in the evaluation of the
+    /// policy ([`crate::sim::SimOptions::contact_recycling`]): a touching
+    /// pair whose relative pose drifted less than 5 cm since its last full
+    /// contact update keeps its contact points and normal instead of
+    /// recomputing them. true = rapier's default (faster); false recomputes
+    /// every pair at every physics step, so a finger capsule (radius 7-10
+    /// mm) sliding over the ball (radius 0.12 m) meets the ball where it
+    /// is. Not in the paper or the reference code. Not written when true.
+    #[serde(skip_serializing_if = "is_true")]
+    pub contact_recycling: bool,
     /// Most frames a reference may run ahead of or behind the policy's
     /// clock between two seams when its clock follows the ball (0 = off,
     /// the clip's clock; [`crate::rl::humanoid::EnvConfig::ball_clock_frames`]),
@@ -507,6 +517,10 @@ fn is_false(b: &bool) -> bool {
     !*b
 }
 
+fn is_true(b: &bool) -> bool {
+    *b
+}
+
 /// PPO keys of `[train.ppo]`; unset keys take the preset's value or the
 /// SkillMimic default.
 #[derive(Clone, Debug, PartialEq, Default, Serialize, Deserialize)]
@@ -611,6 +625,7 @@ impl Default for TrainConfig {
             object_assist_band: 0.0,
             seam_match: SeamMatch::Reference,
             pd_stiffness_scale: 1.0,
+            contact_recycling: true,
             ball_clock_frames: 0,
             sim_start_prob: 0.0,
             sim_start_after: crate::rl::humanoid::SIM_START_AFTER,

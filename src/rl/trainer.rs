@@ -231,10 +231,11 @@ pub fn training_objects(
 }
 
 /// The simulation options training uses for clips at `fps` frames per
-/// second under `cfg` (its `pd_stiffness_scale`).
+/// second under `cfg` (its `pd_stiffness_scale` and `contact_recycling`).
 pub fn training_sim(fps: f64, cfg: &TrainConfig) -> SimOptions {
     SimOptions {
         pd_stiffness_scale: cfg.pd_stiffness_scale as f32,
+        contact_recycling: cfg.contact_recycling,
         ..SimOptions::for_fps(fps)
     }
 }

@@ -68,6 +68,9 @@ pub struct ReplayPhysics {
     /// Angular velocity damping of every object, 1/s, in place of its own
     /// (0.01). Absent: each object's own.
     pub object_angular_damping: Option<f32>,
+    /// rapier's contact recycling ([`SimOptions::contact_recycling`];
+    /// default on, as in training).
+    pub contact_recycling: bool,
 }
 
 impl Default for ReplayPhysics {
@@ -82,6 +85,7 @@ impl Default for ReplayPhysics {
             object_density: None,
             ball_inertia: super::objects::BallInertia::Solid,
             object_angular_damping: None,
+            contact_recycling: d.contact_recycling,
         }
     }
 }
@@ -125,6 +129,7 @@ impl ReplayPhysics {
             substeps: d.substeps * self.rate_factor,
             solver_iterations: self.solver_iterations,
             pgs_iterations: self.pgs_iterations,
+            contact_recycling: self.contact_recycling,
             ..d
         }
     }

@@ -80,8 +80,10 @@ pub struct SimOptions {
     pub pgs_iterations: usize,
     /// rapier internal stabilisation (position correction) iterations.
     pub stabilization_iterations: usize,
-    /// rapier's contact recycling (reuse a pair's contact points while it
-    /// moved less than 5 cm; rapier's default, faster).
+    /// rapier's contact recycling (reuse a touching pair's contact points
+    /// and normal while its relative pose drifted less than 5 cm; rapier's
+    /// default). Off, every pair is recomputed at every physics step; the
+    /// humanoid steps about as fast either way (docs/simulation.md).
     pub contact_recycling: bool,
     /// Add the MJCF joint armature as principal inertia of non-root bodies.
     pub armature_inertia: bool,
@@ -874,6 +876,60 @@ impl World {
         last.body_hands_any = any_bh;
         last.object_hand_distance = dist;
         last
+    }
+
+    /// Hand-object separations, for checking what the contact solver sees:
+    /// one row per hand collider, `(body, narrow phase, geometry)` in m
+    /// (negative = penetration). The narrow phase's is the smallest `dist`
+    /// of the collider's contact points with object `k` as the last
+    /// physics step computed them, from the poses before that step moved
+    /// the bodies (`None`: no points); the geometry's is parry's contact
+    /// query on the two shapes at their bodies' current poses. With
+    /// [`SimOptions::contact_recycling`] a pair that drifted less than 5 cm
+    /// keeps its old points, so the first can lag the geometry by up to
+    /// that drift. Empty without object `k`.
+    pub fn hand_object_separations(&self, k: usize) -> Vec<(usize, Option<f32>, f32)> {
+        let Some(&o) = self.objects.get(k) else {
+            return Vec::new();
+        };
+        let cs = &self.pw.colliders;
+        let mut rows = Vec::new();
+        for &oc in self.pw.bodies[o].colliders() {
+            for (i, &b) in self
+                .bodies
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| self.sk.hand[*i])
+            {
+                for &hc in self.pw.bodies[b].colliders() {
+                    let solver = self.pw.narrow_phase.contact_pair(hc, oc).and_then(|pair| {
+                        pair.manifolds()
+                            .iter()
+                            .flat_map(|m| m.points.iter().map(|p| p.dist))
+                            .reduce(f32::min)
+                    });
+                    let (h, ob) = (&cs[hc], &cs[oc]);
+                    // from the bodies' poses: a collider's own follows its
+                    // body's only once a step has run after `set_state`
+                    let pose = |body: RigidBodyHandle, c: &Collider| {
+                        *self.pw.bodies[body].position()
+                            * c.position_wrt_parent().copied().unwrap_or(Pose::IDENTITY)
+                    };
+                    let geometry = rapier3d::parry::query::contact(
+                        &pose(b, h),
+                        h.shape(),
+                        &pose(o, ob),
+                        ob.shape(),
+                        f32::MAX,
+                    )
+                    .ok()
+                    .flatten()
+                    .map_or(f32::INFINITY, |c| c.dist);
+                    rows.push((i, solver, geometry));
+                }
+            }
+        }
+        rows
     }
 
     /// Smallest distance from a hand body's origin to object `k`'s centre, m.

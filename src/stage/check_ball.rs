@@ -24,9 +24,9 @@
 //! `--set check-ball.physics.KEY=VALUE` runs both under other physics
 //! ([`crate::sim::checks::ReplayPhysics`]: more physics steps or solver
 //! iterations, scaled PD gains, another object density, a ball with a
-//! shell's inertia, another angular damping), to ask whether
-//! the simulation set-up is what keeps the clips' motion from pushing
-//! their ball.
+//! shell's inertia, another angular damping, contact recycling off), to
+//! ask whether the simulation set-up is what keeps the clips' motion from
+//! pushing their ball.
 
 use super::Common;
 use crate::sim::checks::ball_replays;
