@@ -157,6 +157,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.hand_follows_ball=true",
             "--set",
             "train.hand_follows_ball_from=catch",
+            "--set",
+            "train.hand_follows_ball_reach=0.45",
         ],
     );
 }
@@ -2084,11 +2086,13 @@ fn the_online_hand_reaches_its_target_with_the_arm_and_chest_alone() {
     // 5 cm ahead of and 5 cm below the hand body is reached within 1 cm by
     // changing only the window's chain; weight 0 changes nothing and 0.5
     // moves each solved component halfway; a target 1 m away is followed
-    // only REACH_MAX_SHIFT m
+    // only REACH_MAX_SHIFT m, or `train.hand_follows_ball_reach` m when
+    // that is set (its refusal without `hand_follows_ball` too)
     use skillaug::sim::hand_path::{body_position, reach, REACH_MAX_SHIFT};
     use skillaug::sim::mjcf::body_poses;
-    let (_dir, _off, on) = df_setups(|c| c.hand_follows_ball = true);
+    let (dir, _off, on) = df_setups(|c| c.hand_follows_ball = true);
     let h = &on.ball_hands[1];
+    assert!(on.ball_hands.iter().all(|h| h.reach == REACH_MAX_SHIFT));
     let f = &on.lib.frames[h.clip];
     let i = h.start + 3;
     let nj = f.n_joints;
@@ -2136,6 +2140,30 @@ fn the_online_hand_reaches_its_target_with_the_arm_and_chest_alone() {
     let p = body_position(&on.model, root, rot, &got, h.body);
     assert!(dist(p, own) < REACH_MAX_SHIFT + 0.01, "{p:?} from {own:?}");
     assert!(dist(p, far) < dist(own, far) - 0.2, "{p:?} towards {far:?}");
+    // a longer reach from the setting: the set-up gives every window its
+    // reach, and the hand follows the far target further
+    let (_d, _o, long) = df_setups(|c| {
+        c.hand_follows_ball = true;
+        c.hand_follows_ball_reach = 0.6;
+    });
+    assert!(long.ball_hands.iter().all(|h| h.reach == 0.6));
+    let got = reach(&on.model, &long.ball_hands[1], root, rot, joints, far, 1.0);
+    let q = body_position(&on.model, root, rot, &got, h.body);
+    eprintln!(
+        "towards a target 1 m below: {:.3} m with reach {REACH_MAX_SHIFT}, {:.3} m with 0.6",
+        dist(p, own),
+        dist(q, own)
+    );
+    assert!(dist(q, own) < 0.6 + 0.01, "{q:?} from {own:?}");
+    assert!(
+        dist(q, far) < dist(p, far) - 0.1,
+        "{q:?} no nearer {far:?} than {p:?}"
+    );
+    refused(
+        &dir.path().join("run"),
+        &["train.hand_follows_ball_reach=0.6"],
+        "train.hand_follows_ball_reach = 0.6 says how far the hand of train.hand_follows_ball",
+    );
 }
 
 #[test]

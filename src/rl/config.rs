@@ -423,6 +423,18 @@ pub struct TrainConfig {
     /// Not written when `"push"`.
     #[serde(skip_serializing_if = "is_follow_push")]
     pub hand_follows_ball_from: crate::sim::hand_path::FollowFrom,
+    /// How far the online hand of `hand_follows_ball` moves from where the
+    /// reference's pose puts it, m, at most; a ball farther off is
+    /// followed only this far ([`crate::sim::hand_path::BallHand::reach`];
+    /// default [`crate::sim::hand_path::REACH_MAX_SHIFT`], 0.3 m). Needs
+    /// `hand_follows_ball` when not the default. Not written when the
+    /// default.
+    #[serde(skip_serializing_if = "is_default_reach")]
+    pub hand_follows_ball_reach: f64,
+}
+
+fn is_default_reach(r: &f64) -> bool {
+    *r == crate::sim::hand_path::REACH_MAX_SHIFT
 }
 
 fn is_follow_push(f: &crate::sim::hand_path::FollowFrom) -> bool {
@@ -640,6 +652,7 @@ impl Default for TrainConfig {
             reference_hand: crate::sim::hand_path::ReferenceHand::Captured,
             hand_follows_ball: false,
             hand_follows_ball_from: crate::sim::hand_path::FollowFrom::Push,
+            hand_follows_ball_reach: crate::sim::hand_path::REACH_MAX_SHIFT,
         }
     }
 }
@@ -775,6 +788,21 @@ impl crate::config::Validate for TrainConfig {
                  {stage}.hand_follows_ball starts to follow the ball, and that setting is off: \
                  set {stage}.hand_follows_ball = true, or leave hand_follows_ball_from at \"push\"",
                 self.hand_follows_ball_from.name()
+            );
+        }
+        c.range(
+            "hand_follows_ball_reach",
+            self.hand_follows_ball_reach,
+            0.01,
+            2.0,
+        )?;
+        if !is_default_reach(&self.hand_follows_ball_reach) && !self.hand_follows_ball {
+            anyhow::bail!(
+                "{stage}.hand_follows_ball_reach = {} says how far the hand of \
+                 {stage}.hand_follows_ball may reach, and that setting is off: set \
+                 {stage}.hand_follows_ball = true, or leave hand_follows_ball_reach at {}",
+                self.hand_follows_ball_reach,
+                crate::sim::hand_path::REACH_MAX_SHIFT
             );
         }
         if self.push_feed_forward != PushJoints::Off && !self.residual_action {

@@ -301,8 +301,8 @@ pub fn reference_hands(
 /// With `train.hand_follows_ball`, the push windows of `clips` whose
 /// hand follows the simulated ball online
 /// ([`crate::sim::hand_path::ball_hands`], the push search's window
-/// settings, found on the clips as `train.reference_hand` left them);
-/// nothing otherwise.
+/// settings, found on the clips as `train.reference_hand` left them,
+/// reaching `train.hand_follows_ball_reach` at most); nothing otherwise.
 ///
 /// # Errors
 /// The setting on while the clips have no ball or no push window, naming
@@ -324,7 +324,7 @@ pub fn ball_hands(
         );
     }
     let push = crate::sim::push::PushConfig::default();
-    let hands = crate::sim::hand_path::ball_hands(
+    let mut hands = crate::sim::hand_path::ball_hands(
         lib,
         clips,
         model,
@@ -333,6 +333,9 @@ pub fn ball_hands(
         crate::sim::hand_path::BLEND_S,
         cfg.hand_follows_ball_from,
     )?;
+    for h in &mut hands {
+        h.reach = cfg.hand_follows_ball_reach;
+    }
     if hands.is_empty() {
         bail!(
             "train.hand_follows_ball: no push window in the training clips ({names}) (a ball \

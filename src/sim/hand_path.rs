@@ -417,7 +417,7 @@ fn solve(
 const REACH_ITERATIONS: usize = 12;
 
 /// How far [`reach`] moves its hand body from where the reference's pose
-/// puts it, m, at most: the largest shift the offline repair asks of DF's
+/// puts it, m, at most, by default ([`BallHand::reach`]): the largest shift the offline repair asks of DF's
 /// and DL's windows is 0.15-0.20 m (docs/training.md, "A reference hand on
 /// top of its ball"); a ball farther off is followed only this far, so a
 /// stray ball does not twist the chest.
@@ -454,6 +454,10 @@ pub struct BallHand {
     /// The body's height above the ball's centre, m: its distance from
     /// the ball at the window's first frame.
     pub height: f64,
+    /// How far [`reach`] moves the body from where the reference's pose
+    /// puts it, m, at most ([`REACH_MAX_SHIFT`] unless
+    /// `train.hand_follows_ball_reach` says otherwise).
+    pub reach: f64,
 }
 
 impl BallHand {
@@ -546,6 +550,7 @@ pub fn ball_hands(
                 body: h.body,
                 chain: h.chain,
                 height: h.height,
+                reach: REACH_MAX_SHIFT,
             });
         }
     }
@@ -587,7 +592,7 @@ pub fn body_position(
 /// reference's next frame) with `hand`'s chain moved so that its body,
 /// in a pose rooted at `root_pos` / `root_rot`, reaches `target` (m) by
 /// damped least squares as the offline repair ([`repair_hands`]), the
-/// target first brought within [`REACH_MAX_SHIFT`] of where `joint_rot`
+/// target first brought within [`BallHand::reach`] of where `joint_rot`
 /// puts the body, and the change scaled by `weight` in [0, 1]
 /// ([`BallHand::weight`]). Not in the paper or the reference code.
 pub fn reach(
@@ -611,8 +616,8 @@ pub fn reach(
     let own = body_position(model, root_pos, root_rot, joint_rot, hand.body);
     let shift: [f64; 3] = std::array::from_fn(|k| target[k] - own[k]);
     let len = norm(shift);
-    let scale = if len > REACH_MAX_SHIFT {
-        REACH_MAX_SHIFT / len
+    let scale = if len > hand.reach {
+        hand.reach / len
     } else {
         1.0
     };
