@@ -37,7 +37,8 @@
 //! and does not compute; for a policy trained on a stiffer character
 //! (`train.pd_stiffness_scale` other than 1) that factor on kp, and for
 //! one trained with other ball physics (`train.object_density`,
-//! `train.ball_inertia`, `train.object_angular_damping`) those settings.
+//! `train.ball_inertia`, `train.object_angular_damping`) or contacts
+//! (`train.contact_recycling` off) those settings.
 //!
 //! Encoding: the ONNX messages ([`proto`]) are declared here by hand with
 //! `prost` derive macros and the field numbers of `onnx/onnx.proto` of the
@@ -874,6 +875,16 @@ fn metadata(
                 .to_string(),
         ));
     }
+    if !meta.train.contact_recycling {
+        // the policy was trained with contacts recomputed at every physics
+        // step: a consumer on rapier must turn its recycling off too
+        v.push((
+            "contact_recycling",
+            "false: trained and evaluated with rapier's contact recycling off, every contact \
+             pair recomputed at every physics step (train.contact_recycling)"
+                .to_string(),
+        ));
+    }
     Ok(v)
 }
 
@@ -1029,6 +1040,10 @@ mod tests {
         absent(&stiff, "object_angular_damping");
         stiff.train.object_angular_damping = Some(10.0);
         declared(&stiff, "object_angular_damping", "10");
+        // and contacts recomputed at every step
+        absent(&stiff, "contact_recycling");
+        stiff.train.contact_recycling = false;
+        declared(&stiff, "contact_recycling", "false");
     }
 
     #[test]
