@@ -417,10 +417,11 @@ fn solve(
 const REACH_ITERATIONS: usize = 12;
 
 /// How far [`reach`] moves its hand body from where the reference's pose
-/// puts it, m, at most, by default ([`BallHand::reach`]): the largest shift the offline repair asks of DF's
-/// and DL's windows is 0.15-0.20 m (docs/training.md, "A reference hand on
-/// top of its ball"); a ball farther off is followed only this far, so a
-/// stray ball does not twist the chest.
+/// puts it, m, at most, by default ([`BallHand::reach`]): the largest
+/// shift the offline repair asks of DF's and DL's windows is 0.15-0.20 m
+/// (docs/training.md, "A reference hand on top of its ball"); a ball
+/// farther off is followed only this far, so a stray ball does not twist
+/// the chest.
 pub const REACH_MAX_SHIFT: f64 = 0.3;
 
 /// Lead of the online hand target over the simulated ball, s: the PD
