@@ -503,17 +503,29 @@ fn a_policy_trained_with_the_hand_on_its_ball_is_evaluated_against_the_same_refe
 
 #[test]
 fn a_policy_trained_with_its_hand_following_the_ball_is_evaluated_with_it() {
-    // `train.hand_follows_ball` travels in policy.meta.json and evaluation
-    // finds the push windows again and moves the feed-forward targets as
-    // training did: taking the setting out of the description gives other
-    // trials
-    let (dir, run, pol) =
-        df_policy(&["train.residual_action=true", "train.hand_follows_ball=true"]);
+    // `train.hand_follows_ball` and its `hand_follows_ball_reach` travel in
+    // policy.meta.json and evaluation finds the push windows again and
+    // moves the feed-forward targets as training did: taking the reach out
+    // of the description (0.3 m again), then the setting itself, gives
+    // other trials each time
+    let (dir, run, pol) = df_policy(&[
+        "train.residual_action=true",
+        "train.hand_follows_ball=true",
+        "train.hand_follows_ball_reach=0.6",
+    ]);
     let from = run.to_str().unwrap();
     let (_, meta) = policy_meta(&pol);
     assert_eq!(meta["train"]["hand_follows_ball"], true);
+    assert_eq!(meta["train"]["hand_follows_ball_reach"], 0.6);
     let as_trained = dir.path().join("ev-follows");
     eval(from, &pol, &as_trained, &SHORT_SR);
+    let short_reach = eval_without(
+        from,
+        &pol,
+        "hand_follows_ball_reach",
+        &dir.path().join("ev-short-reach"),
+    );
+    assert_ne!(mean_sm(&as_trained), short_reach);
     let other = eval_without(
         from,
         &pol,

@@ -1196,7 +1196,25 @@ fn without_contact_recycling_the_solver_sees_the_hand_and_ball_where_they_are() 
     // from; with rapier's default recycling some stay frozen while the
     // fingers slide over the ball.
     let (_d, lib, model) = ballplay();
-    let (_, objs, opts) = df_run(&lib);
+    let (c, objs, opts) = df_run(&lib);
+    // the settings of training (`train.contact_recycling`) and of the
+    // replays (`check-ball.physics.contact_recycling`) reach the worlds
+    let fps = lib.clips[c].fps as f64;
+    let off = SimOptions {
+        contact_recycling: false,
+        ..opts.clone()
+    };
+    assert!(opts.contact_recycling, "rapier's recycling is the default");
+    let train = skillaug::rl::config::TrainConfig {
+        contact_recycling: false,
+        ..Default::default()
+    };
+    assert_eq!(skillaug::rl::trainer::training_sim(fps, &train), off);
+    let replay = skillaug::sim::checks::ReplayPhysics {
+        contact_recycling: false,
+        ..Default::default()
+    };
+    assert_eq!(replay.options(fps), off);
     let lag = |recycling: bool| -> (f32, usize) {
         let opts = SimOptions {
             contact_recycling: recycling,

@@ -295,7 +295,7 @@ pub struct TrainConfig {
     /// pair whose relative pose drifted less than 5 cm since its last full
     /// contact update keeps its contact points and normal instead of
     /// recomputing them. true = rapier's default; false recomputes
-    /// every pair at every physics step, so a finger capsule (radius 7-10
+    /// every pair at every physics step, so a finger capsule (radius 5-12
     /// mm) sliding over the ball (radius 0.12 m) meets the ball where it
     /// is. Not in the paper or the reference code. Not written when true.
     #[serde(skip_serializing_if = "is_true")]

@@ -1587,9 +1587,16 @@ impl<'a> Trainer<'a> {
         }
         if cfg.hand_follows_ball {
             on.push(format!(
-                "hand_follows_ball from the {} (the pushing hand's targets on the simulated ball)",
-                cfg.hand_follows_ball_from.name()
+                "hand_follows_ball from the {}, reaching {} m at most (the pushing hand's \
+                 targets on the simulated ball)",
+                cfg.hand_follows_ball_from.name(),
+                cfg.hand_follows_ball_reach
             ));
+        }
+        if !cfg.contact_recycling {
+            on.push(
+                "contact_recycling off (every contact recomputed at every physics step)".into(),
+            );
         }
         if cfg.reference_ball != crate::sim::ball_path::ReferenceBall::Captured {
             on.push(format!(

@@ -421,7 +421,9 @@ const REACH_ITERATIONS: usize = 12;
 /// shift the offline repair asks of DF's and DL's windows is 0.15-0.20 m
 /// (docs/training.md, "A reference hand on top of its ball"); a ball
 /// farther off is followed only this far, so a stray ball does not twist
-/// the chest.
+/// the chest. `train.hand_follows_ball_reach` is left out of a policy's
+/// `policy.meta.json` when it equals this value, so changing it changes
+/// how older policies are evaluated.
 pub const REACH_MAX_SHIFT: f64 = 0.3;
 
 /// Lead of the online hand target over the simulated ball, s: the PD
@@ -490,8 +492,10 @@ impl BallHand {
 /// `start` moves back over the consecutive frames, after the previous
 /// window's release, with a hand body within `hand_radius` m of the
 /// ball; the hand body, its side and its height over the ball stay those
-/// of the push's first frame). Clips without an object have none. In
-/// clip and frame order.
+/// of the push's first frame). Every window's [`BallHand::reach`] is
+/// [`REACH_MAX_SHIFT`] (training sets `train.hand_follows_ball_reach` on
+/// them afterwards). Clips without an object have none. In clip and
+/// frame order.
 ///
 /// # Errors
 /// A model without one of the bodies of the solved joints (`L_`/`R_`

@@ -879,15 +879,22 @@ impl World {
     }
 
     /// Hand-object separations, for checking what the contact solver sees:
-    /// one row per hand collider, `(body, narrow phase, geometry)` in m
-    /// (negative = penetration). The narrow phase's is the smallest `dist`
-    /// of the collider's contact points with object `k` as the last
-    /// physics step computed them, from the poses before that step moved
-    /// the bodies (`None`: no points); the geometry's is parry's contact
-    /// query on the two shapes at their bodies' current poses. With
-    /// [`SimOptions::contact_recycling`] a pair that drifted less than 5 cm
-    /// keeps its old points, so the first can lag the geometry by up to
-    /// that drift. Empty without object `k`.
+    /// one row per pair of a collider of object `k` and a collider of a
+    /// hand body, `(body, solver, geometry)`:
+    /// - `body`: the hand body's model index;
+    /// - `solver`: the smallest `dist` of the pair's contact points, m
+    ///   (negative = penetration; `None`: no points), as the narrow phase
+    ///   of the last physics step computed them from the poses before that
+    ///   step moved the bodies;
+    /// - `geometry`: parry's contact distance of the two shapes at their
+    ///   bodies' current poses, m (infinite where parry cannot compare the
+    ///   two shapes).
+    ///
+    /// The two columns of one call come from different poses: compare
+    /// `geometry` read before a physics step with `solver` read after it.
+    /// Without [`SimOptions::contact_recycling`] they agree; with it a pair
+    /// that drifted less than 5 cm keeps its old points, so `solver` can
+    /// lag by up to that drift. Empty without object `k`.
     pub fn hand_object_separations(&self, k: usize) -> Vec<(usize, Option<f32>, f32)> {
         let Some(&o) = self.objects.get(k) else {
             return Vec::new();
