@@ -35,11 +35,20 @@ It prints, per catch (first, second, ...), the standing trials that reach
 it, the median horizontal miss, the share with any touch, the mean share
 of touching steps, the median smallest distance, and the mean work done
 on the simulated and on the reference ball. With `-v`, every trial's
-catches. Needs pyarrow only.
+catches.
+
+For a policy trained with `train.hand_follows_ball`, whose recording has
+the `hand_target_distance` column, it then prints how far the pushing
+hand ended, after each standing step inside a push window, from the point
+its online targets aimed at (above the simulated ball, capped at
+`train.hand_follows_ball_reach` from the reference's hand): the median
+and the quartiles. Needs pyarrow only.
 """
 import math
 import statistics
 import sys
+
+import pyarrow.parquet as pq
 
 from ball_energy import energy
 from ball_lead import offset
@@ -132,6 +141,29 @@ def main():
             f"{statistics.median(x[2] for x in g):.3f} m (median); work on the ball "
             f"{sum(x[3] for x in g) / n:+.1f} J/kg, the reference's {ref_mean}"
         )
+    online_target(args[1])
+
+
+def online_target(ev):
+    """Print the pushing hand's distance from its online target over the
+    standing steps that have one, when the recording has the column."""
+    table = pq.read_table(f"{ev}/eval_rollouts.parquet")
+    if "hand_target_distance" not in table.column_names:
+        return
+    ro = table.select(["metric", "root_pos", "hand_target_distance"]).to_pydict()
+    d = sorted(
+        x
+        for m, r, x in zip(ro["metric"], ro["root_pos"], ro["hand_target_distance"])
+        if m == "sr" and x is not None and r[2] > STANDING
+    )
+    if not d:
+        print("online hand: no standing step inside a push window (trained without hand_follows_ball?)")
+        return
+    q = statistics.quantiles(d, n=4) if len(d) > 1 else [d[0]] * 3
+    print(
+        f"online hand: {len(d)} standing steps inside a push window; the hand ended {q[1]:.3f} m "
+        f"(median; quartiles {q[0]:.3f}-{q[2]:.3f} m) from the point its targets aimed at"
+    )
 
 
 if __name__ == "__main__":

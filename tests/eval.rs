@@ -182,6 +182,8 @@ fn eval_gives_the_share_of_trials_standing_from_each_trials_first_fall() {
     assert_eq!(steps_read.len(), r.rows());
     let mut touched = 0;
     for s in &steps_read {
+        // without `train.hand_follows_ball` no step has an online target
+        assert_eq!(s.hand_target_distance, None, "step {}", s.step);
         let d = s.hand_ball_distance.expect("a DF step has a ball");
         assert!(d.is_finite() && d > 0.0, "step {}: {d}", s.step);
         if s.hand_ball_touch.expect("a DF step has a ball") {
@@ -519,6 +521,38 @@ fn a_policy_trained_with_its_hand_following_the_ball_is_evaluated_with_it() {
     assert_eq!(meta["train"]["hand_follows_ball_reach"], 0.6);
     let as_trained = dir.path().join("ev-follows");
     eval(from, &pol, &as_trained, &SHORT_SR);
+    // recorded, the steps inside a push window proper say how far the
+    // pushing hand ended from the point its targets aimed at; the others
+    // say nothing: every such step's reference frame lies in one of DF's
+    // windows (`run`: frames 2-13 and 50-63, `run2`: 41-56, with the push
+    // search's settings; `DF_PUSH_WINDOWS` in tests/train.rs)
+    let rec = dir.path().join("ev-follows-rec");
+    let mut sets = SHORT_SR.to_vec();
+    sets.extend(["eval.record=4", "eval.steps=80"]);
+    eval(from, &pol, &rec, &sets);
+    let steps = skillaug::table::rollout::read(&rec.join("eval_rollouts.parquet")).unwrap();
+    let aimed: Vec<_> = steps
+        .iter()
+        .filter_map(|s| Some((s.reference?, s.hand_target_distance?)))
+        .collect();
+    assert!(!aimed.is_empty(), "no recorded step inside a push window");
+    for ((_, f), d) in &aimed {
+        assert!(d.is_finite() && *d >= 0.0 && *d < 3.0, "frame {f}: {d} m");
+        assert!(
+            (2..=13).contains(f) || (41..=63).contains(f),
+            "frame {f} is in no window"
+        );
+    }
+    eprintln!(
+        "{} of {} recorded steps aimed, median {:.3} m",
+        aimed.len(),
+        steps.len(),
+        {
+            let mut d: Vec<f32> = aimed.iter().map(|x| x.1).collect();
+            d.sort_by(f32::total_cmp);
+            d[d.len() / 2]
+        }
+    );
     let short_reach = eval_without(
         from,
         &pol,

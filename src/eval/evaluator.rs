@@ -239,6 +239,7 @@ impl Evaluator<'_> {
                         posture: rec.posture,
                         hand_ball_distance: rec.hand_ball_distance,
                         hand_ball_touch: rec.hand_ball_touch,
+                        hand_target_distance: rec.hand_target_distance,
                     });
                 }
                 if r.terminated[e] || r.truncated[e] {

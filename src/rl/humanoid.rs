@@ -801,6 +801,11 @@ struct Episode {
     ff_rates: Vec<f32>,
     /// With the reference observation: the next reference frame (anchored).
     next_ref: Option<State>,
+    /// With [`EnvConfig::ball_hand`], when the coming step's reference
+    /// frame is inside a push window proper (weight 1): the pushing hand
+    /// body and the point its targets were solved towards, m, world
+    /// ([`crate::sim::hand_path::capped_target`]); `None` otherwise.
+    hand_target: Option<(usize, [f64; 3])>,
 }
 
 impl Episode {
@@ -867,6 +872,12 @@ pub struct RecordedStep {
     /// A hand body's collider touched object 0 at any physics substep of
     /// the step (the `touch` contact rule); `None` without an object.
     pub hand_ball_touch: Option<bool>,
+    /// With `train.hand_follows_ball`, at a step whose reference frame is
+    /// inside a push window proper: the distance from the pushing hand
+    /// body's origin after the step to the point its targets were solved
+    /// towards before it, m ([`crate::sim::hand_path::capped_target`]);
+    /// `None` otherwise.
+    pub hand_target_distance: Option<f32>,
 }
 
 /// What drives one environment's step: the policy's action (`act_dim`
@@ -1234,6 +1245,7 @@ impl Ctx<'_> {
             ff_rates: Vec::new(),
             ff_plain: Vec::new(),
             next_ref: None,
+            hand_target: None,
         };
         if self.cfg.residual_action {
             ep.ff = feed_forward(&g.joint_rot);
@@ -1360,6 +1372,8 @@ impl Ctx<'_> {
         if !ended {
             self.extend(ep, &s);
         }
+        // the hand target that drove this step, before the next replaces it
+        let aimed = ep.hand_target;
         self.update_next(ep, &s);
         // (a reference that waited for its ball leaves steps over when the
         // episode reaches its length)
@@ -1381,6 +1395,11 @@ impl Ctx<'_> {
                 .and_then(|(st, _)| st.ref_clip.zip(st.ref_frame)),
             hand_ball_distance: contacts.object_hand_distance.first().copied(),
             hand_ball_touch: contacts.object_hands_any.first().copied(),
+            hand_target_distance: aimed.map(|(b, p)| {
+                let q = &s.body_pos[3 * b..3 * b + 3];
+                let d2: f64 = (0..3).map(|k| (q[k] as f64 - p[k]).powi(2)).sum();
+                d2.sqrt() as f32
+            }),
         });
         ep.prev_joint_vel = s.joint_vel;
         Outcome {
@@ -1454,6 +1473,7 @@ impl Ctx<'_> {
     /// offset), the anchored state as `ep.next_ref`.
     fn update_next(&self, ep: &mut Episode, s: &State) {
         let (res, obs) = (self.cfg.residual_action, self.cfg.reference_obs);
+        ep.hand_target = None;
         if !(res || obs) {
             return;
         }
@@ -1476,7 +1496,8 @@ impl Ctx<'_> {
                     Some(now) => lead_target(&now.joint_rot, &r.joint_rot, lead),
                     None => r.joint_rot.clone(),
                 };
-                let e = self.hand_on_ball(ep, s, &r, e);
+                let (e, aim) = self.hand_on_ball(ep, s, &r, e);
+                ep.hand_target = aim;
                 ep.ff = feed_forward(&e);
                 ep.ff_plain.clear();
                 if let Some(p) = self.push_window(ep) {
@@ -1499,10 +1520,18 @@ impl Ctx<'_> {
     /// The feed-forward joint targets `e` (`[J*3]`, rad) for the step to
     /// `next`, the reference of `ep.at + 1`, with the pushing hand put
     /// on `s`'s ball ([`EnvConfig::ball_hand`]); `e` itself outside the
-    /// windows or when off.
-    fn hand_on_ball(&self, ep: &Episode, s: &State, next: &State, e: Vec<f32>) -> Vec<f32> {
+    /// windows or when off; beside them, inside a window proper (weight
+    /// 1), the hand body and the point it was solved towards
+    /// ([`Episode::hand_target`]).
+    fn hand_on_ball(
+        &self,
+        ep: &Episode,
+        s: &State,
+        next: &State,
+        e: Vec<f32>,
+    ) -> (Vec<f32>, Option<(usize, [f64; 3])>) {
         if self.cfg.ball_hand.is_empty() || s.obj_pos.len() < 3 || next.obj_pos.len() < 3 {
-            return e;
+            return (e, None);
         }
         let along = |t: usize| {
             ep.step_at(t)
@@ -1510,7 +1539,7 @@ impl Ctx<'_> {
                 .and_then(|(st, a)| Some((st.ref_clip?, st.ref_frame?, a)))
         };
         let Some((c, f, a)) = along(ep.at + 1) else {
-            return e;
+            return (e, None);
         };
         let (c, f) = (c as usize, f as usize);
         let Some(hand) = self
@@ -1519,7 +1548,7 @@ impl Ctx<'_> {
             .iter()
             .find(|h| h.clip == c && h.first <= f && f <= h.end)
         else {
-            return e;
+            return (e, None);
         };
         let fps = self.lib.clips[c].fps as f64;
         let lead = (crate::sim::hand_path::REACH_LEAD_S * fps).round() as usize;
@@ -1552,15 +1581,21 @@ impl Ctx<'_> {
             ball[2] + hand.height + disp[2],
         ];
         let root = s.root_pos;
-        crate::sim::hand_path::reach(
-            &self.model,
-            hand,
-            root,
-            s.root_rot,
-            &e,
-            target,
-            hand.weight(f),
-        )
+        let weight = hand.weight(f);
+        let aim = (weight >= 1.0).then(|| {
+            let p = crate::sim::hand_path::capped_target(
+                &self.model,
+                hand,
+                root,
+                s.root_rot,
+                &e,
+                target,
+            );
+            (hand.body, p)
+        });
+        let e =
+            crate::sim::hand_path::reach(&self.model, hand, root, s.root_rot, &e, target, weight);
+        (e, aim)
     }
 
     /// The window of [`EnvConfig::push_feed_forward`] whose offset the

@@ -593,6 +593,29 @@ pub fn body_position(
     pos
 }
 
+/// The point [`reach`] solves `hand`'s body towards, m (world): `target`
+/// brought within [`BallHand::reach`] of where `joint_rot` (`[J*3]`
+/// exp-maps, rad) puts the body in the pose rooted at `root_pos` (m) /
+/// `root_rot` (quaternion x, y, z, w).
+pub fn capped_target(
+    model: &Model,
+    hand: &BallHand,
+    root_pos: [f32; 3],
+    root_rot: [f32; 4],
+    joint_rot: &[f32],
+    target: [f64; 3],
+) -> [f64; 3] {
+    let own = body_position(model, root_pos, root_rot, joint_rot, hand.body);
+    let shift: [f64; 3] = std::array::from_fn(|k| target[k] - own[k]);
+    let len = norm(shift);
+    let scale = if len > hand.reach {
+        hand.reach / len
+    } else {
+        1.0
+    };
+    std::array::from_fn(|k| own[k] + shift[k] * scale)
+}
+
 /// The joint rotations `joint_rot` (`[J*3]` exp-maps, rad; the
 /// reference's next frame) with `hand`'s chain moved so that its body,
 /// in a pose rooted at `root_pos` / `root_rot`, reaches `target` (m) by
@@ -618,15 +641,7 @@ pub fn reach(
     let theta_own: Vec<f64> = (0..n)
         .map(|k| joint_rot[3 * chain[k / 3] + k % 3] as f64)
         .collect();
-    let own = body_position(model, root_pos, root_rot, joint_rot, hand.body);
-    let shift: [f64; 3] = std::array::from_fn(|k| target[k] - own[k]);
-    let len = norm(shift);
-    let scale = if len > hand.reach {
-        hand.reach / len
-    } else {
-        1.0
-    };
-    let target: [f64; 3] = std::array::from_fn(|k| own[k] + shift[k] * scale);
+    let target = capped_target(model, hand, root_pos, root_rot, joint_rot, target);
     let mut scratch = joint_rot.to_vec();
     let position = |t: &[f64]| {
         for k in 0..n {

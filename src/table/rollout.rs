@@ -45,6 +45,11 @@ pub struct RolloutStep {
     /// A hand body touched object 0 at any physics substep of the step
     /// (None: no object, or an older table).
     pub hand_ball_touch: Option<bool>,
+    /// With `train.hand_follows_ball`, inside a push window proper: the
+    /// pushing hand body's distance after the step from the point its
+    /// targets were solved towards, m (None: outside, off, or an older
+    /// table).
+    pub hand_target_distance: Option<f32>,
 }
 
 impl TableRow for RolloutStep {
@@ -68,6 +73,7 @@ impl TableRow for RolloutStep {
             Column::new("obj_rot", "[O*4] simulated object rotations (x, y, z, w)", |r: &R| r.posture.obj_rot.clone()),
             Column::new("hand_ball_distance", "smallest distance from a hand body's origin (wrist or finger joint) to object 0's centre over the step's physics substeps, m; null without an object", |r: &R| r.hand_ball_distance),
             Column::new("hand_ball_touch", "a hand body's collider touched object 0 at any physics substep of the step; null without an object", |r: &R| r.hand_ball_touch),
+            Column::new("hand_target_distance", "with train.hand_follows_ball, at a step whose reference frame is inside a push window proper (weight 1): the distance from the pushing hand body's origin after the step to the point its targets were solved towards (above the simulated ball, within train.hand_follows_ball_reach of the reference's hand), m; null otherwise", |r: &R| r.hand_target_distance),
         ]
     }
 }
@@ -99,6 +105,7 @@ pub fn read(path: &Path) -> Result<Vec<RolloutStep>> {
         // tables written before these columns existed lack them
         let distance = opt_f32s_if_present(b, "hand_ball_distance", path)?;
         let touch = opt_bools_if_present(b, "hand_ball_touch", path)?;
+        let aim = opt_f32s_if_present(b, "hand_target_distance", path)?;
         let sm = col(b, "sm_reward", path)?
             .as_primitive_opt::<Float64Type>()
             .ok_or_else(|| anyhow!("{}: column `sm_reward` is not Float64", path.display()))?
@@ -117,6 +124,7 @@ pub fn read(path: &Path) -> Result<Vec<RolloutStep>> {
                 posture: posture_row(b, path, i)?.ok_or_else(|| bad("root_pos"))?,
                 hand_ball_distance: distance[i],
                 hand_ball_touch: touch[i],
+                hand_target_distance: aim[i],
             });
         }
     }
