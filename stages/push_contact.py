@@ -147,10 +147,10 @@ def main():
 def online_target(ev):
     """Print the pushing hand's distance from its online target over the
     standing steps that have one, when the recording has the column."""
-    table = pq.read_table(f"{ev}/eval_rollouts.parquet")
-    if "hand_target_distance" not in table.column_names:
+    path = f"{ev}/eval_rollouts.parquet"
+    if "hand_target_distance" not in pq.read_schema(path).names:
         return
-    ro = table.select(["metric", "root_pos", "hand_target_distance"]).to_pydict()
+    ro = pq.read_table(path, columns=["metric", "root_pos", "hand_target_distance"]).to_pydict()
     d = sorted(
         x
         for m, r, x in zip(ro["metric"], ro["root_pos"], ro["hand_target_distance"])

@@ -536,6 +536,11 @@ fn a_policy_trained_with_its_hand_following_the_ball_is_evaluated_with_it() {
         .filter_map(|s| Some((s.reference?, s.hand_target_distance?)))
         .collect();
     assert!(!aimed.is_empty(), "no recorded step inside a push window");
+    // 3 m is a sanity bound, not a derived one: every hand body's origin is
+    // within 1.36 m of the root along the chain (mocap_humanoid.xml), so a
+    // target within 0.6 m of the reference's hand on the character's root
+    // and the simulated hand after one step are at most about 3.4 m apart;
+    // the largest recorded here is 0.93 m
     for ((_, f), d) in &aimed {
         assert!(d.is_finite() && *d >= 0.0 && *d < 3.0, "frame {f}: {d} m");
         assert!(
@@ -543,15 +548,14 @@ fn a_policy_trained_with_its_hand_following_the_ball_is_evaluated_with_it() {
             "frame {f} is in no window"
         );
     }
+    let mut d: Vec<f32> = aimed.iter().map(|x| x.1).collect();
+    d.sort_by(f32::total_cmp);
     eprintln!(
-        "{} of {} recorded steps aimed, median {:.3} m",
+        "{} of {} recorded steps aimed, median {:.3} m, largest {:.3} m",
         aimed.len(),
         steps.len(),
-        {
-            let mut d: Vec<f32> = aimed.iter().map(|x| x.1).collect();
-            d.sort_by(f32::total_cmp);
-            d[d.len() / 2]
-        }
+        d[d.len() / 2],
+        d[d.len() - 1]
     );
     let short_reach = eval_without(
         from,

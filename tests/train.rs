@@ -2120,7 +2120,7 @@ fn the_online_hand_reaches_its_target_with_the_arm_and_chest_alone() {
         ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
     };
     let target = [own[0] + 0.05, own[1], own[2] - 0.05];
-    let got = reach(&on.model, h, root, rot, joints, target, 1.0);
+    let got = reach(&on.model, h, root, rot, joints, target, 1.0).0;
     let p = body_position(&on.model, root, rot, &got, h.body);
     assert!(dist(p, target) < 0.01, "{p:?} against {target:?}");
     for j in 0..nj {
@@ -2129,14 +2129,17 @@ fn the_online_hand_reaches_its_target_with_the_arm_and_chest_alone() {
             assert!(same, "joint {j} outside the chain moved");
         }
     }
-    assert_eq!(reach(&on.model, h, root, rot, joints, target, 0.0), joints);
-    let half = reach(&on.model, h, root, rot, joints, target, 0.5);
+    assert_eq!(
+        reach(&on.model, h, root, rot, joints, target, 0.0).0,
+        joints
+    );
+    let half = reach(&on.model, h, root, rot, joints, target, 0.5).0;
     for k in 0..3 * nj {
         let want = joints[k] + 0.5 * (got[k] - joints[k]);
         assert!((half[k] - want).abs() < 1e-5, "component {k}");
     }
     let far = [own[0], own[1], own[2] - 1.0];
-    let got = reach(&on.model, h, root, rot, joints, far, 1.0);
+    let got = reach(&on.model, h, root, rot, joints, far, 1.0).0;
     let p = body_position(&on.model, root, rot, &got, h.body);
     assert!(dist(p, own) < REACH_MAX_SHIFT + 0.01, "{p:?} from {own:?}");
     assert!(dist(p, far) < dist(own, far) - 0.2, "{p:?} towards {far:?}");
@@ -2147,7 +2150,7 @@ fn the_online_hand_reaches_its_target_with_the_arm_and_chest_alone() {
         c.hand_follows_ball_reach = 0.6;
     });
     assert!(long.ball_hands.iter().all(|h| h.reach == 0.6));
-    let got = reach(&on.model, &long.ball_hands[1], root, rot, joints, far, 1.0);
+    let got = reach(&on.model, &long.ball_hands[1], root, rot, joints, far, 1.0).0;
     let q = body_position(&on.model, root, rot, &got, h.body);
     eprintln!(
         "towards a target 1 m below: {:.3} m with reach {REACH_MAX_SHIFT}, {:.3} m with 0.6",

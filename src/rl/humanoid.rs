@@ -804,7 +804,7 @@ struct Episode {
     /// With [`EnvConfig::ball_hand`], when the coming step's reference
     /// frame is inside a push window proper (weight 1): the pushing hand
     /// body and the point its targets were solved towards, m, world
-    /// ([`crate::sim::hand_path::capped_target`]); `None` otherwise.
+    /// ([`crate::sim::hand_path::reach`]); `None` otherwise.
     hand_target: Option<(usize, [f64; 3])>,
 }
 
@@ -875,7 +875,7 @@ pub struct RecordedStep {
     /// With `train.hand_follows_ball`, at a step whose reference frame is
     /// inside a push window proper: the distance from the pushing hand
     /// body's origin after the step to the point its targets were solved
-    /// towards before it, m ([`crate::sim::hand_path::capped_target`]);
+    /// towards before it, m ([`crate::sim::hand_path::reach`]);
     /// `None` otherwise.
     pub hand_target_distance: Option<f32>,
 }
@@ -1582,20 +1582,10 @@ impl Ctx<'_> {
         ];
         let root = s.root_pos;
         let weight = hand.weight(f);
-        let aim = (weight >= 1.0).then(|| {
-            let p = crate::sim::hand_path::capped_target(
-                &self.model,
-                hand,
-                root,
-                s.root_rot,
-                &e,
-                target,
-            );
-            (hand.body, p)
-        });
-        let e =
+        let (e, aimed) =
             crate::sim::hand_path::reach(&self.model, hand, root, s.root_rot, &e, target, weight);
-        (e, aim)
+        // the point is recorded only inside the window proper
+        (e, (weight >= 1.0).then_some((hand.body, aimed)))
     }
 
     /// The window of [`EnvConfig::push_feed_forward`] whose offset the

@@ -593,36 +593,14 @@ pub fn body_position(
     pos
 }
 
-/// The point [`reach`] solves `hand`'s body towards, m (world): `target`
-/// brought within [`BallHand::reach`] of where `joint_rot` (`[J*3]`
-/// exp-maps, rad) puts the body in the pose rooted at `root_pos` (m) /
-/// `root_rot` (quaternion x, y, z, w).
-pub fn capped_target(
-    model: &Model,
-    hand: &BallHand,
-    root_pos: [f32; 3],
-    root_rot: [f32; 4],
-    joint_rot: &[f32],
-    target: [f64; 3],
-) -> [f64; 3] {
-    let own = body_position(model, root_pos, root_rot, joint_rot, hand.body);
-    let shift: [f64; 3] = std::array::from_fn(|k| target[k] - own[k]);
-    let len = norm(shift);
-    let scale = if len > hand.reach {
-        hand.reach / len
-    } else {
-        1.0
-    };
-    std::array::from_fn(|k| own[k] + shift[k] * scale)
-}
-
 /// The joint rotations `joint_rot` (`[J*3]` exp-maps, rad; the
 /// reference's next frame) with `hand`'s chain moved so that its body,
 /// in a pose rooted at `root_pos` / `root_rot`, reaches `target` (m) by
 /// damped least squares as the offline repair ([`repair_hands`]), the
 /// target first brought within [`BallHand::reach`] of where `joint_rot`
 /// puts the body, and the change scaled by `weight` in [0, 1]
-/// ([`BallHand::weight`]). Not in the paper or the reference code.
+/// ([`BallHand::weight`]). Returns the joint rotations and that capped
+/// point, m (world). Not in the paper or the reference code.
 pub fn reach(
     model: &Model,
     hand: &BallHand,
@@ -631,17 +609,25 @@ pub fn reach(
     joint_rot: &[f32],
     target: [f64; 3],
     weight: f64,
-) -> Vec<f32> {
+) -> (Vec<f32>, [f64; 3]) {
     let mut joints = joint_rot.to_vec();
+    let own = body_position(model, root_pos, root_rot, joint_rot, hand.body);
+    let shift: [f64; 3] = std::array::from_fn(|k| target[k] - own[k]);
+    let len = norm(shift);
+    let scale = if len > hand.reach {
+        hand.reach / len
+    } else {
+        1.0
+    };
+    let target: [f64; 3] = std::array::from_fn(|k| own[k] + shift[k] * scale);
     if weight <= 0.0 {
-        return joints;
+        return (joints, target);
     }
     let chain = &hand.chain;
     let n = 3 * chain.len();
     let theta_own: Vec<f64> = (0..n)
         .map(|k| joint_rot[3 * chain[k / 3] + k % 3] as f64)
         .collect();
-    let target = capped_target(model, hand, root_pos, root_rot, joint_rot, target);
     let mut scratch = joint_rot.to_vec();
     let position = |t: &[f64]| {
         for k in 0..n {
@@ -660,5 +646,5 @@ pub fn reach(
         let v = theta_own[k] + weight * (theta[k] - theta_own[k]);
         joints[3 * chain[k / 3] + k % 3] = v as f32;
     }
-    joints
+    (joints, target)
 }
