@@ -1200,7 +1200,7 @@ fn without_contact_recycling_the_solver_sees_the_hand_and_ball_where_they_are() 
     // the settings of training (`train.contact_recycling`) and of the
     // replays (`check-ball.physics.contact_recycling`) reach the worlds
     let fps = lib.clips[c].fps as f64;
-    let off = SimOptions {
+    let fresh = SimOptions {
         contact_recycling: false,
         ..opts.clone()
     };
@@ -1209,12 +1209,12 @@ fn without_contact_recycling_the_solver_sees_the_hand_and_ball_where_they_are() 
         contact_recycling: false,
         ..Default::default()
     };
-    assert_eq!(skillaug::rl::trainer::training_sim(fps, &train), off);
+    assert_eq!(skillaug::rl::trainer::training_sim(fps, &train), fresh);
     let replay = skillaug::sim::checks::ReplayPhysics {
         contact_recycling: false,
         ..Default::default()
     };
-    assert_eq!(replay.options(fps), off);
+    assert_eq!(replay.options(fps), fresh);
     let lag = |recycling: bool| -> (f32, usize) {
         let opts = SimOptions {
             contact_recycling: recycling,
