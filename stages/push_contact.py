@@ -42,7 +42,26 @@ the `hand_target_distance` column, it then prints how far the pushing
 hand ended, after each standing step inside a push window, from the point
 its online targets aimed at (above the simulated ball, capped at
 `train.hand_follows_ball_reach` from the reference's hand): the median
-and the quartiles. Needs pyarrow only.
+and the quartiles. That point leads the simulated ball by the drives'
+time constant (0.1 s of the reference ball's motion relative to the
+root), so a hand that follows its targets is about the lead's length from
+it after one step.
+
+With the `hand_target`, `hand_target_posed`, `hand_target_applied` and
+`hand_pos` columns it goes on, in the root's frame (the targets are joint
+rotations, so the point they aim at moves with the root), with medians:
+
+- the solver's residual: from the aimed point to where the solved
+  feed-forward pose puts the hand;
+- the policy's shift: from that pose's hand to where the applied targets
+  (the pose plus the policy's residual) put it;
+- for k = 0 to the lead's steps, the hand after step t + k from step t's
+  aimed point, feed-forward pose and applied targets, over runs of
+  standing steps that all aim: how close the hand comes once the drives
+  have had their time, and whether a gap is the solver's, the policy's
+  or the drives'.
+
+Needs pyarrow only.
 """
 import math
 import statistics
@@ -56,6 +75,7 @@ from catch_gap import catches, load
 
 FALLING_BELOW = 0.5  # m: a ball falling below this height is on its way to the floor
 STANDING = 0.5  # m: a root above this height stands (the evaluation's fall rule)
+LEAD_S = 0.1  # s: the online hand target's lead (REACH_LEAD_S, src/sim/hand_path.rs)
 
 
 def moving_energy(p, q, rate):
@@ -141,29 +161,91 @@ def main():
             f"{statistics.median(x[2] for x in g):.3f} m (median); work on the ball "
             f"{sum(x[3] for x in g) / n:+.1f} J/kg, the reference's {ref_mean}"
         )
-    online_target(args[1])
+    online_target(args[1], fps)
 
 
-def online_target(ev):
+def online_target(ev, fps):
     """Print the pushing hand's distance from its online target over the
-    standing steps that have one, when the recording has the column."""
+    standing steps that have one, when the recording has the column; with
+    the recorded points, where the gap comes from (see the module doc)."""
     path = f"{ev}/eval_rollouts.parquet"
-    if "hand_target_distance" not in pq.read_schema(path).names:
+    names = pq.read_schema(path).names
+    if "hand_target_distance" not in names:
         return
-    ro = pq.read_table(path, columns=["metric", "root_pos", "hand_target_distance"]).to_pydict()
-    d = sorted(
-        x
-        for m, r, x in zip(ro["metric"], ro["root_pos"], ro["hand_target_distance"])
+    extra = ["hand_target", "hand_target_posed", "hand_target_applied", "hand_pos", "root_rot"]
+    points = all(n in names for n in extra)
+    cols = ["metric", "trial", "step", "root_pos", "hand_target_distance"]
+    ro = pq.read_table(path, columns=cols + (extra if points else [])).to_pydict()
+    rows = [
+        i
+        for i, (m, r, x) in enumerate(zip(ro["metric"], ro["root_pos"], ro["hand_target_distance"]))
         if m == "sr" and x is not None and r[2] > STANDING
-    )
+    ]
+    d = sorted(ro["hand_target_distance"][i] for i in rows)
     if not d:
         print("online hand: no standing step inside a push window (trained without hand_follows_ball?)")
         return
-    q = statistics.quantiles(d, n=4) if len(d) > 1 else [d[0]] * 3
+    q = quartiles(d)
     print(
         f"online hand: {len(d)} standing steps inside a push window; the hand ended {q[1]:.3f} m "
         f"(median; quartiles {q[0]:.3f}-{q[2]:.3f} m) from the point its targets aimed at"
     )
+    if not points or len(set(fps.values())) != 1:
+        return
+    # in the frame of the root: the targets are joint rotations, so a
+    # point aimed at from the root before step t moves with the root
+    # afterwards; the root before step t is the one recorded after t - 1
+    at = {(ro["trial"][i], ro["step"][i]): i for i, m in enumerate(ro["metric"]) if m == "sr"}
+
+    def local(i, p):
+        return to_root(ro["root_pos"][i], ro["root_rot"][i], p)
+
+    aims = {}
+    for i in rows:
+        key = (ro["trial"][i], ro["step"][i])
+        before = at.get((key[0], key[1] - 1))
+        if before is not None:
+            aims[key] = [local(before, ro[c][i]) for c in ("hand_target", "hand_target_posed", "hand_target_applied")]
+    if not aims:
+        return
+    solver = [math.dist(a, b) for a, b, _ in aims.values()]
+    policy = [math.dist(b, c) for _, b, c in aims.values()]
+    print(
+        f"online hand, in the root's frame over {len(aims)} steps (median): the solved pose puts the hand "
+        f"{statistics.median(solver):.3f} m from the aimed point; the policy's residual moves it "
+        f"{statistics.median(policy):.3f} m from there"
+    )
+    lead = round(LEAD_S * next(iter(fps.values())))
+    for k in range(lead + 1):
+        g = []
+        for (t, s), pts in aims.items():
+            later = at.get((t, s + k))
+            if later is not None and all((t, s + j) in aims for j in range(1, k + 1)):
+                h = local(later, ro["hand_pos"][later])
+                g.append([math.dist(p, h) for p in pts])
+        if g:
+            print(
+                f"  hand after step t + {k} from step t's aimed point / feed-forward pose / applied targets: "
+                + " / ".join(f"{statistics.median(x[c] for x in g):.3f}" for c in range(3))
+                + f" m ({len(g)} steps)"
+            )
+
+
+def to_root(root, q, p):
+    """Point `p` (m, world) in the frame of a root at `root` with rotation
+    `q` (x, y, z, w): the inverse rotation of p - root."""
+    x, y, z, w = q
+    v = [p[k] - root[k] for k in range(3)]
+    # v' = conj(q) v q, by t = 2 (u x v) with u = -(x, y, z)
+    u = (-x, -y, -z)
+    t = [2 * (u[1] * v[2] - u[2] * v[1]), 2 * (u[2] * v[0] - u[0] * v[2]), 2 * (u[0] * v[1] - u[1] * v[0])]
+    c = [u[1] * t[2] - u[2] * t[1], u[2] * t[0] - u[0] * t[2], u[0] * t[1] - u[1] * t[0]]
+    return [v[k] + w * t[k] + c[k] for k in range(3)]
+
+
+def quartiles(d):
+    """First, second and third quartiles of a non-empty list."""
+    return statistics.quantiles(d, n=4) if len(d) > 1 else [d[0]] * 3
 
 
 if __name__ == "__main__":

@@ -184,6 +184,14 @@ fn eval_gives_the_share_of_trials_standing_from_each_trials_first_fall() {
     for s in &steps_read {
         // without `train.hand_follows_ball` no step has an online target
         assert_eq!(s.hand_target_distance, None, "step {}", s.step);
+        assert!(
+            s.hand_target.is_none()
+                && s.hand_target_posed.is_none()
+                && s.hand_target_applied.is_none()
+                && s.hand_pos.is_none(),
+            "step {}",
+            s.step
+        );
         let d = s.hand_ball_distance.expect("a DF step has a ball");
         assert!(d.is_finite() && d > 0.0, "step {}: {d}", s.step);
         if s.hand_ball_touch.expect("a DF step has a ball") {
@@ -548,6 +556,36 @@ fn a_policy_trained_with_its_hand_following_the_ball_is_evaluated_with_it() {
             "frame {f} is in no window"
         );
     }
+    // the recorded points go with the distance: the hand after the step is
+    // that far from the aimed point, and the solved feed-forward pose puts
+    // the hand within the damped solver's reach of it (the reach test in
+    // tests/train.rs moves it 0.535 m of the 0.6 asked); the steps outside
+    // the windows have none
+    let dist = |a: [f32; 3], b: [f32; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>().sqrt();
+    let mut solver: Vec<f32> = Vec::new();
+    for s in &steps {
+        let points = [
+            s.hand_target,
+            s.hand_target_posed,
+            s.hand_target_applied,
+            s.hand_pos,
+        ];
+        let Some(d) = s.hand_target_distance else {
+            assert!(points.iter().all(Option::is_none), "step {}", s.step);
+            continue;
+        };
+        let [Some(aim), Some(posed), Some(applied), Some(hand)] = points else {
+            panic!("step {}: an aimed step lacks a point: {points:?}", s.step);
+        };
+        assert!((dist(aim, hand) - d).abs() < 1e-4, "step {}", s.step);
+        assert!(applied.iter().all(|v| v.is_finite()), "step {}", s.step);
+        solver.push(dist(aim, posed));
+    }
+    solver.sort_by(f32::total_cmp);
+    assert!(
+        solver[solver.len() / 2] < 0.1,
+        "solver residuals {solver:?}"
+    );
     let mut d: Vec<f32> = aimed.iter().map(|x| x.1).collect();
     d.sort_by(f32::total_cmp);
     eprintln!(

@@ -240,6 +240,10 @@ impl Evaluator<'_> {
                         hand_ball_distance: rec.hand_ball_distance,
                         hand_ball_touch: rec.hand_ball_touch,
                         hand_target_distance: rec.hand_target_distance,
+                        hand_target: rec.hand_target,
+                        hand_target_posed: rec.hand_target_posed,
+                        hand_target_applied: rec.hand_target_applied,
+                        hand_pos: rec.hand_pos,
                     });
                 }
                 if r.terminated[e] || r.truncated[e] {

@@ -803,9 +803,29 @@ struct Episode {
     next_ref: Option<State>,
     /// With [`EnvConfig::ball_hand`], when the coming step's reference
     /// frame is inside a push window proper (weight 1): the pushing hand
-    /// body and the point its targets were solved towards, m, world
-    /// ([`crate::sim::hand_path::reach`]); `None` otherwise.
-    hand_target: Option<(usize, [f64; 3])>,
+    /// body and where its targets aim ([`HandAim`]); `None` otherwise.
+    hand_target: Option<HandAim>,
+}
+
+/// Where the pushing hand's feed-forward targets aim at one step
+/// ([`crate::sim::hand_path::reach`]), kept for `eval --record`.
+#[derive(Clone, Copy, Debug)]
+struct HandAim {
+    /// The pushing hand body (model body index).
+    body: usize,
+    /// The point its targets were solved towards, m, world.
+    aimed: [f64; 3],
+    /// Where the solved target pose puts the body, m, world: forward
+    /// kinematics of the targets from the simulated root before the step
+    /// (the solver's residual is its distance from `aimed`).
+    posed: [f64; 3],
+    /// The simulated root before the step (position, m; rotation x, y,
+    /// z, w), which `posed` is rooted at.
+    root: ([f32; 3], [f32; 4]),
+    /// Where the targets the step applied (the feed-forward plus the
+    /// policy's residual) put the body from that root, m, world; set when
+    /// the step is recorded.
+    applied: Option<[f64; 3]>,
 }
 
 impl Episode {
@@ -878,6 +898,23 @@ pub struct RecordedStep {
     /// towards before it, m ([`crate::sim::hand_path::reach`]);
     /// `None` otherwise.
     pub hand_target_distance: Option<f32>,
+    /// At the same steps: the point the pushing hand's targets were
+    /// solved towards before the step (world frame, m), and that hand
+    /// body's origin after the step (m), so that how far the hand is from
+    /// a point aimed at several steps earlier can be read afterwards (the
+    /// point leads the simulated ball by the drives' time constant,
+    /// [`crate::sim::hand_path::REACH_LEAD_S`]); `None` otherwise.
+    pub hand_target: Option<[f32; 3]>,
+    /// At the same steps: where the solved target pose puts that body,
+    /// m, world (forward kinematics from the simulated root before the
+    /// step; its distance from `hand_target` is the solver's residual).
+    pub hand_target_posed: Option<[f32; 3]>,
+    /// At the same steps: where the targets the step applied (the
+    /// feed-forward plus the policy's residual) put that body, from the
+    /// same root, m, world.
+    pub hand_target_applied: Option<[f32; 3]>,
+    /// See [`RecordedStep::hand_target`].
+    pub hand_pos: Option<[f32; 3]>,
 }
 
 /// What drives one environment's step: the policy's action (`act_dim`
@@ -1273,6 +1310,21 @@ impl Ctx<'_> {
         ep.actions.extend_from_slice(a);
         if self.cfg.residual_action {
             let total: Vec<f32> = a.iter().zip(&ep.ff).map(|(a, f)| a + f).collect();
+            if let Some(aim) = ep.hand_target.as_mut().filter(|_| record) {
+                // the joint targets as World::apply_action sets them
+                let e: Vec<f32> = total
+                    .iter()
+                    .map(|v| std::f32::consts::PI * v.clamp(-1.0, 1.0))
+                    .collect();
+                let (root, rot) = aim.root;
+                aim.applied = Some(crate::sim::hand_path::body_position(
+                    &self.model,
+                    root,
+                    rot,
+                    &e,
+                    aim.body,
+                ));
+            }
             if self.cfg.velocity_feed_forward {
                 w.apply_action_with_rates(&total, &ep.ff_rates);
             } else {
@@ -1395,11 +1447,15 @@ impl Ctx<'_> {
                 .and_then(|(st, _)| st.ref_clip.zip(st.ref_frame)),
             hand_ball_distance: contacts.object_hand_distance.first().copied(),
             hand_ball_touch: contacts.object_hands_any.first().copied(),
-            hand_target_distance: aimed.map(|(b, p)| {
-                let q = &s.body_pos[3 * b..3 * b + 3];
-                let d2: f64 = (0..3).map(|k| (q[k] as f64 - p[k]).powi(2)).sum();
+            hand_target_distance: aimed.map(|a| {
+                let q = &s.body_pos[3 * a.body..3 * a.body + 3];
+                let d2: f64 = (0..3).map(|k| (q[k] as f64 - a.aimed[k]).powi(2)).sum();
                 d2.sqrt() as f32
             }),
+            hand_target: aimed.map(|a| a.aimed.map(|v| v as f32)),
+            hand_target_posed: aimed.map(|a| a.posed.map(|v| v as f32)),
+            hand_target_applied: aimed.and_then(|a| a.applied).map(|p| p.map(|v| v as f32)),
+            hand_pos: aimed.map(|a| std::array::from_fn(|k| s.body_pos[3 * a.body + k])),
         });
         ep.prev_joint_vel = s.joint_vel;
         Outcome {
@@ -1529,7 +1585,7 @@ impl Ctx<'_> {
         s: &State,
         next: &State,
         e: Vec<f32>,
-    ) -> (Vec<f32>, Option<(usize, [f64; 3])>) {
+    ) -> (Vec<f32>, Option<HandAim>) {
         if self.cfg.ball_hand.is_empty() || s.obj_pos.len() < 3 || next.obj_pos.len() < 3 {
             return (e, None);
         }
@@ -1585,7 +1641,20 @@ impl Ctx<'_> {
         let (e, aimed) =
             crate::sim::hand_path::reach(&self.model, hand, root, s.root_rot, &e, target, weight);
         // the point is recorded only inside the window proper
-        (e, (weight >= 1.0).then_some((hand.body, aimed)))
+        let aim = (weight >= 1.0).then(|| HandAim {
+            body: hand.body,
+            aimed,
+            posed: crate::sim::hand_path::body_position(
+                &self.model,
+                root,
+                s.root_rot,
+                &e,
+                hand.body,
+            ),
+            root: (root, s.root_rot),
+            applied: None,
+        });
+        (e, aim)
     }
 
     /// The window of [`EnvConfig::push_feed_forward`] whose offset the

@@ -84,6 +84,30 @@ pub fn opt_f32s_if_present(b: &RecordBatch, name: &str, path: &Path) -> Result<V
         .collect())
 }
 
+/// A `FixedSizeList<Float32, 3>` column with its null rows; all `None`
+/// when the batch lacks the column (as [`opt_f32s_if_present`]). A row of
+/// another length is an error naming the column.
+pub fn opt_f32x3s_if_present(
+    b: &RecordBatch,
+    name: &str,
+    path: &Path,
+) -> Result<Vec<Option<[f32; 3]>>> {
+    let Some(a) = b.column_by_name(name) else {
+        return Ok(vec![None; b.num_rows()]);
+    };
+    (0..a.len())
+        .map(|i| {
+            f32_row(a, i)
+                .map(|v| {
+                    <[f32; 3]>::try_from(v).map_err(|_| {
+                        anyhow!("{}: row {i}: `{name}` is not 3 floats", path.display())
+                    })
+                })
+                .transpose()
+        })
+        .collect()
+}
+
 /// A Boolean column with its nulls; all `None` when the batch lacks the
 /// column (as [`opt_f32s_if_present`]).
 pub fn opt_bools_if_present(b: &RecordBatch, name: &str, path: &Path) -> Result<Vec<Option<bool>>> {
