@@ -424,6 +424,42 @@ fn a_policy_trained_with_a_stiffer_drive_another_ball_or_fresh_contacts_is_evalu
 }
 
 #[test]
+fn a_policy_trained_with_a_smaller_residual_on_its_arms_is_evaluated_with_it() {
+    // `train.residual_scale` and `train.residual_scale_joints` travel in
+    // policy.meta.json and the evaluation applies the policy's residual
+    // as training did: taking the joints out (the factor on every joint),
+    // then the factor (1 again), gives other trials each time
+    let (dir, run, pol) = df_policy(&[
+        "train.residual_action=true",
+        "train.residual_scale=0.25",
+        "train.residual_scale_joints=arms",
+    ]);
+    let from = run.to_str().unwrap();
+    let (meta_path, meta) = policy_meta(&pol);
+    assert_eq!(meta["train"]["residual_scale"], 0.25);
+    assert_eq!(meta["train"]["residual_scale_joints"], "arms");
+    let as_trained = dir.path().join("ev-scaled");
+    eval(from, &pol, &as_trained, &SHORT_SR);
+    let mut seen = vec![mean_sm(&as_trained)];
+    for key in ["residual_scale_joints", "residual_scale"] {
+        let mut m = meta.clone();
+        let t = m["train"].as_object_mut().unwrap();
+        t.remove(key);
+        if key == "residual_scale" {
+            // the joints alone would be refused: a factor of 1 scales none
+            t.remove("residual_scale_joints");
+        }
+        std::fs::write(&meta_path, serde_json::to_vec(&m).unwrap()).unwrap();
+        let other = dir.path().join(format!("ev-no-{key}"));
+        eval(from, &pol, &other, &SHORT_SR);
+        let b = mean_sm(&other);
+        eprintln!("mean SM per trial: {:?}, without {key} {b:?}", seen[0]);
+        assert!(seen.iter().all(|a| *a != b), "{key}");
+        seen.push(b);
+    }
+}
+
+#[test]
 fn a_policy_trained_against_simulated_ball_flights_is_evaluated_against_the_same() {
     // `train.reference_ball = "simulated"` travels in policy.meta.json with
     // the flights training solved; evaluation solves them again, scores

@@ -79,7 +79,7 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // waits and skips are rebuilt by the replay of each episode's actions)
     // a reference ball whose flights are simulated, and feed-forward
     // targets whose pushing hand follows the simulated ball (solved again
-    // at every replayed step)
+    // at every replayed step), a smaller residual on the arms
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -159,6 +159,10 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.hand_follows_ball_from=catch",
             "--set",
             "train.hand_follows_ball_reach=0.45",
+            "--set",
+            "train.residual_scale=0.5",
+            "--set",
+            "train.residual_scale_joints=arms",
         ],
     );
 }
@@ -2306,9 +2310,82 @@ fn the_push_warm_start_fits_the_searched_offsets_inside_push_windows() {
         .sum();
     assert_eq!(inside, windows);
 
+    // with a smaller residual on the arms (`train.residual_scale`), the
+    // policy's part that adds the same offset is as much larger there
+    // (clamped to [-1, 1]); the offsets are zero off the arms
+    let scaled = TrainConfig {
+        residual_scale: 0.5,
+        residual_scale_joints: skillaug::rl::humanoid::JointSet::Arms,
+        ..cfg.clone()
+    };
+    let env = environment(&s, &scaled, None, 2, &[], &mut rng).unwrap();
+    let (_, half) = env.warm_start_data(&s.clips, 0, &pushes, &mut rng).unwrap();
+    assert_eq!(half.len(), targets.len());
+    let mut larger = 0;
+    for (h, t) in half.iter().zip(&targets) {
+        let want = (t / 0.5).clamp(-1.0, 1.0);
+        assert!((h - want).abs() < 1e-6, "{h} against {want}");
+        larger += usize::from(h.abs() > t.abs());
+    }
+    assert!(larger > 0, "no offset target grew");
+
     // an unknown joint group is refused, naming the key
     let (_dir, run) = ingested("ballplay");
     refused(&run, &["train.warm_start_push=hands"], "warm_start_push");
+}
+
+#[test]
+fn a_residual_scale_shrinks_the_policy_s_part_of_the_pd_targets_on_its_joints() {
+    use skillaug::rl::humanoid::{residual_gain, residual_targets, JointSet};
+    let cfg = TrainConfig {
+        skills: vec!["run".into()],
+        ..TrainConfig::default()
+    };
+    let (_dir, s) = ballplay_setup(&cfg);
+    // the arms of BallPlay's model: 36 of 52 joints, 3 values each
+    let arms = JointSet::Arms.mask(&s.model);
+    let gain = residual_gain(&arms, 0.25);
+    assert_eq!(gain.len(), 3 * arms.len());
+    assert_eq!(gain.iter().filter(|g| **g == 0.25).count(), 3 * 36);
+    assert_eq!(gain.iter().filter(|g| **g == 1.0).count(), 3 * 16);
+    for (j, on) in arms.iter().enumerate() {
+        let want = if *on { 0.25 } else { 1.0 };
+        assert_eq!(gain[3 * j..3 * j + 3], [want; 3], "joint {j}");
+    }
+    // 1 keeps every value as it was, without a gain vector
+    assert!(residual_gain(&arms, 1.0).is_empty());
+    let a: Vec<f32> = (0..gain.len()).map(|i| 0.4 - 0.01 * i as f32).collect();
+    let ff: Vec<f32> = (0..gain.len()).map(|i| 0.002 * i as f32).collect();
+    let plain = residual_targets(&a, &ff, &[]);
+    let scaled = residual_targets(&a, &ff, &gain);
+    for i in 0..a.len() {
+        assert_eq!(plain[i], a[i] + ff[i]);
+        assert!(
+            (scaled[i] - (gain[i] * a[i] + ff[i])).abs() < 1e-7,
+            "value {i}"
+        );
+    }
+    // refused without residual actions, or naming joints with a factor
+    // of 1, or out of range, naming the key and writing nothing
+    let (_dir, run) = ingested("ballplay");
+    refused(
+        &run,
+        &["train.residual_scale=0.5"],
+        "train.residual_scale = 0.5 scales the policy's residual of train.residual_action",
+    );
+    refused(
+        &run,
+        &[
+            "train.residual_action=true",
+            "train.residual_scale_joints=arms",
+        ],
+        "train.residual_scale_joints = \"arms\"",
+    );
+    refused(
+        &run,
+        &["train.residual_action=true", "train.residual_scale=2"],
+        "residual_scale",
+    );
 }
 
 #[test]

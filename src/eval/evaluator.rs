@@ -417,6 +417,8 @@ pub fn plan_cells(
         feed_forward_lead: t.feed_forward_lead,
         velocity_feed_forward: t.velocity_feed_forward,
         velocity_feed_forward_joints: t.velocity_feed_forward_joints,
+        residual_scale: t.residual_scale as f32,
+        residual_scale_joints: t.residual_scale_joints,
         seam_blend_steps: t.seam_blend_steps,
         seam_masked_min: t.seam_masked_min,
         seam_match: t.seam_match,

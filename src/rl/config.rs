@@ -210,6 +210,19 @@ pub struct TrainConfig {
     /// when `"all"`.
     #[serde(skip_serializing_if = "is_all_joints")]
     pub noise_correlation_joints: JointSet,
+    /// With `residual_action`: factor on the policy's residual of the
+    /// joints in `residual_scale_joints`, so their PD targets are
+    /// π·clamp(e/π + scale·a, −1, 1)
+    /// ([`crate::rl::humanoid::EnvConfig::residual_scale`]); 1 = π·a on
+    /// every joint. In training and in the evaluation of the policy. Not
+    /// in the paper or the reference code. Not written when 1.
+    #[serde(skip_serializing_if = "is_one_f64")]
+    pub residual_scale: f64,
+    /// Which joints' residual `residual_scale` scales: `"all"`, or
+    /// `"arms"` (shoulders, elbows, wrists and the hands, as for
+    /// `velocity_feed_forward_joints`). Not written when `"all"`.
+    #[serde(skip_serializing_if = "is_all_joints")]
+    pub residual_scale_joints: JointSet,
     /// Steps over which a continued reference blends from the frame its
     /// clip ended on into the frames after the seam
     /// ([`crate::rl::humanoid::EnvConfig::seam_blend_steps`]; 0 = a jump).
@@ -626,6 +639,8 @@ impl Default for TrainConfig {
             velocity_feed_forward: false,
             velocity_feed_forward_joints: JointSet::All,
             noise_correlation_joints: JointSet::All,
+            residual_scale: 1.0,
+            residual_scale_joints: JointSet::All,
             seam_blend_steps: 0,
             term_grace_steps: 0,
             seam_leave_search_s: 0.0,
@@ -772,6 +787,23 @@ impl crate::config::Validate for TrainConfig {
                  {stage}.push_feed_forward or {stage}.warm_start_push optimises, and both are \
                  \"off\": turn one on, or leave push_objective at \"ball\"",
                 self.push_objective.name()
+            );
+        }
+        c.range("residual_scale", self.residual_scale, 0.01, 1.0)?;
+        if self.residual_scale != 1.0 && !self.residual_action {
+            anyhow::bail!(
+                "{stage}.residual_scale = {} scales the policy's residual of \
+                 {stage}.residual_action, which is off: set {stage}.residual_action = true, or \
+                 leave residual_scale at 1",
+                self.residual_scale
+            );
+        }
+        if self.residual_scale_joints != JointSet::All && self.residual_scale == 1.0 {
+            anyhow::bail!(
+                "{stage}.residual_scale_joints = \"{}\" says which joints {stage}.residual_scale \
+                 scales, and that is 1: set residual_scale below 1, or leave \
+                 residual_scale_joints at \"all\"",
+                self.residual_scale_joints.name()
             );
         }
         if self.hand_follows_ball && !self.residual_action {

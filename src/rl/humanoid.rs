@@ -210,6 +210,14 @@ pub struct EnvConfig {
     /// [`EnvConfig::velocity_feed_forward`]; the others keep a zero target
     /// velocity (damped, as in the reference code).
     pub velocity_feed_forward_joints: JointSet,
+    /// With [`EnvConfig::residual_action`]: factor on the policy's residual
+    /// of the joints in [`EnvConfig::residual_scale_joints`], so their PD
+    /// targets are π·clamp(e/π + scale·a, −1, 1): the feed-forward pose
+    /// weighs more against the policy's correction, and the action noise
+    /// moves those targets `scale` times as far; 1 = π·a on every joint.
+    pub residual_scale: f32,
+    /// Which joints' residual [`EnvConfig::residual_scale`] scales.
+    pub residual_scale_joints: JointSet,
     /// Continued frames blended with the old clip's last frame after a seam
     /// ([`crate::augment::seam::blend`], weights 1/(K+1) .. K/(K+1) on the
     /// new frames); 0 = the reference jumps to the seam frame.
@@ -443,6 +451,8 @@ impl EnvConfig {
             feed_forward_lead: 0.0,
             velocity_feed_forward: false,
             velocity_feed_forward_joints: JointSet::All,
+            residual_scale: 1.0,
+            residual_scale_joints: JointSet::All,
             seam_blend_steps: 0,
             term_grace_steps: 0,
             object_assist: 0.0,
@@ -1112,12 +1122,18 @@ struct Ctx<'a> {
     /// Per joint (`[J]`): whether it gets feed-forward target velocities
     /// (from [`EnvConfig::velocity_feed_forward_joints`]).
     ff_rate_joints: Vec<bool>,
+    /// Per action value (`[J*3]`): the factor on the policy's residual
+    /// ([`EnvConfig::residual_scale`] on its joints, 1 elsewhere); empty
+    /// when every factor is 1.
+    residual_gain: Vec<f32>,
 }
 
 /// A set of the humanoid's joints: those that
 /// [`EnvConfig::velocity_feed_forward`] drives with the reference's joint
-/// velocities (`train.velocity_feed_forward_joints`), or those whose action
-/// noise is correlated in time (`train.noise_correlation_joints`).
+/// velocities (`train.velocity_feed_forward_joints`), those whose action
+/// noise is correlated in time (`train.noise_correlation_joints`), or those
+/// whose residual [`EnvConfig::residual_scale`] scales
+/// (`train.residual_scale_joints`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum JointSet {
@@ -1136,6 +1152,14 @@ pub enum JointSet {
 }
 
 impl JointSet {
+    /// The set's name in the settings: `all` or `arms`.
+    pub fn name(self) -> &'static str {
+        match self {
+            JointSet::All => "all",
+            JointSet::Arms => "arms",
+        }
+    }
+
     /// Per joint of `model` (joint j drives body j + 1): whether it is in
     /// the set.
     pub fn mask(self, model: &Model) -> Vec<bool> {
@@ -1181,6 +1205,33 @@ pub fn feed_forward(joint_rot: &[f32]) -> Vec<f32> {
     joint_rot
         .iter()
         .map(|e| (e / std::f32::consts::PI).clamp(-1.0, 1.0))
+        .collect()
+}
+
+/// Per action value of the joints in `mask` (`[J]`, joint j owns values
+/// 3j..3j+3): `scale`, 1 elsewhere; empty when `scale` is 1
+/// ([`EnvConfig::residual_scale`]).
+pub fn residual_gain(mask: &[bool], scale: f32) -> Vec<f32> {
+    if scale == 1.0 {
+        return Vec::new();
+    }
+    mask.iter()
+        .flat_map(|&on| [if on { scale } else { 1.0 }; 3])
+        .collect()
+}
+
+/// The action a residual policy's step applies (`[J*3]`, the simulator
+/// clamps it to [-1, 1] and maps it to π·x rad, [`World::apply_action`]):
+/// the feed-forward `ff` plus the policy's action `a` times `gain`
+/// ([`residual_gain`]; empty = 1 on every value).
+pub fn residual_targets(a: &[f32], ff: &[f32], gain: &[f32]) -> Vec<f32> {
+    if gain.is_empty() {
+        return a.iter().zip(ff).map(|(a, f)| a + f).collect();
+    }
+    a.iter()
+        .zip(ff)
+        .zip(gain)
+        .map(|((a, f), g)| g * a + f)
         .collect()
 }
 
@@ -1309,7 +1360,7 @@ impl Ctx<'_> {
         let Control { action: a, assist } = control;
         ep.actions.extend_from_slice(a);
         if self.cfg.residual_action {
-            let total: Vec<f32> = a.iter().zip(&ep.ff).map(|(a, f)| a + f).collect();
+            let total = residual_targets(a, &ep.ff, &self.residual_gain);
             if let Some(aim) = ep.hand_target.as_mut().filter(|_| record) {
                 // the joint targets as World::apply_action sets them
                 let e: Vec<f32> = total
@@ -2030,6 +2081,10 @@ impl<'a> HumanoidEnv<'a> {
                 .map(|c| (c.name.as_str(), c.skill.as_str(), c.class as u32)),
         )?;
         let ff_rate_joints = parts.cfg.velocity_feed_forward_joints.mask(&parts.model);
+        let residual_gain = residual_gain(
+            &parts.cfg.residual_scale_joints.mask(&parts.model),
+            parts.cfg.residual_scale,
+        );
         let ctx = Ctx {
             lib,
             sk,
@@ -2053,6 +2108,7 @@ impl<'a> HumanoidEnv<'a> {
             seam_pool: parts.seam_pool,
             stf: parts.stf.clone(),
             ff_rate_joints,
+            residual_gain,
         };
         let mut env = HumanoidEnv {
             ats_weights: parts.ats.weights(&AtsParams::default()),
@@ -2107,7 +2163,8 @@ impl<'a> HumanoidEnv<'a> {
     /// ŝ_{f+1}). A frame inside a window of `pushes` (frames
     /// `start..release` of its clip) adds that window's offset, rad, to its
     /// PD targets (`train.warm_start_push`; with residual actions the
-    /// target is the offset / π, clamped to [-1, 1]). Returns (`N *
+    /// target is the offset / π, clamped to [-1, 1], over the value's
+    /// [`EnvConfig::residual_scale`] factor and clamped again). Returns (`N *
     /// obs_dim` observations, `N * act_dim` targets).
     pub fn warm_start_data(
         &self,
@@ -2136,7 +2193,18 @@ impl<'a> HumanoidEnv<'a> {
                 // part, so the policy's own part is zero, or a push offset.
                 let target = if self.ctx.cfg.residual_action {
                     match push {
-                        Some(o) => feed_forward(o),
+                        // the residual that adds o: o / π over the
+                        // value's gain (`residual_scale`)
+                        Some(o) => {
+                            let mut t = feed_forward(o);
+                            let g = &self.ctx.residual_gain;
+                            if !g.is_empty() {
+                                t.iter_mut()
+                                    .zip(g)
+                                    .for_each(|(t, g)| *t = (*t / g).clamp(-1.0, 1.0));
+                            }
+                            t
+                        }
                         None => vec![0.0; next.joint_rot.len()],
                     }
                 } else {

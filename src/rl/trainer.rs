@@ -481,6 +481,8 @@ pub fn environment<'a>(
         feed_forward_lead: cfg.feed_forward_lead,
         velocity_feed_forward: cfg.velocity_feed_forward,
         velocity_feed_forward_joints: cfg.velocity_feed_forward_joints,
+        residual_scale: cfg.residual_scale as f32,
+        residual_scale_joints: cfg.residual_scale_joints,
         seam_blend_steps: cfg.seam_blend_steps,
         term_grace_steps: cfg.term_grace_steps,
         object_assist_band: cfg.object_assist_band as f32,
@@ -1498,6 +1500,17 @@ impl<'a> Trainer<'a> {
                     ""
                 } else {
                     " (no effect: no residual actions)"
+                }
+            ));
+        }
+        if cfg.residual_scale != 1.0 {
+            on.push(format!(
+                "residual_scale={}{}",
+                cfg.residual_scale,
+                if cfg.residual_scale_joints == JointSet::Arms {
+                    " (arms)"
+                } else {
+                    ""
                 }
             ));
         }
