@@ -44,22 +44,25 @@ its online targets aimed at (above the simulated ball, capped at
 `train.hand_follows_ball_reach` from the reference's hand): the median
 and the quartiles. That point leads the simulated ball by the drives'
 time constant (0.1 s of the reference ball's motion relative to the
-root), so a hand that follows its targets is about the lead's length from
-it after one step.
+root), so a hand that follows its targets with the drives' lag is about
+the lead's length from it after one step.
 
 With the `hand_target`, `hand_target_posed`, `hand_target_applied` and
-`hand_pos` columns it goes on, in the root's frame (the targets are joint
-rotations, so the point they aim at moves with the root), with medians:
+`pushing_hand_pos` columns it goes on, with medians over the standing
+steps that aim:
 
-- the solver's residual: from the aimed point to where the solved
-  feed-forward pose puts the hand;
-- the policy's shift: from that pose's hand to where the applied targets
-  (the pose plus the policy's residual) put it;
-- for k = 0 to the lead's steps, the hand after step t + k from step t's
-  aimed point, feed-forward pose and applied targets, over runs of
-  standing steps that all aim: how close the hand comes once the drives
-  have had their time, and whether a gap is the solver's, the policy's
-  or the drives'.
+- the solver's residual: from the aimed point to where the feed-forward
+  targets (the solved pose as the drives get it) put the hand;
+- the policy's shift: from there to where the applied targets (the
+  feed-forward plus the policy's residual) put it (both from the same
+  root, so no frame is needed);
+- for k = 0 to the lead's steps less one (k + 1 steps after the targets
+  were set; the last is the lead's time), the hand after step t + k from
+  step t's aimed point, feed-forward pose and applied targets, in the
+  root's frame (the targets are joint rotations, so the points they aim
+  at move with the root), over runs of standing steps that all aim: how
+  close the hand comes once the drives have had their time, and whether
+  a gap is the solver's, the policy's or the drives'.
 
 Needs pyarrow only.
 """
@@ -172,9 +175,9 @@ def online_target(ev, fps):
     names = pq.read_schema(path).names
     if "hand_target_distance" not in names:
         return
-    extra = ["hand_target", "hand_target_posed", "hand_target_applied", "hand_pos", "root_rot"]
+    extra = ["hand_target", "hand_target_posed", "hand_target_applied", "pushing_hand_pos", "root_rot"]
     points = all(n in names for n in extra)
-    cols = ["metric", "trial", "step", "root_pos", "hand_target_distance"]
+    cols = ["metric", "from_skill", "to_skill", "trial", "step", "root_pos", "hand_target_distance"]
     ro = pq.read_table(path, columns=cols + (extra if points else [])).to_pydict()
     rows = [
         i
@@ -190,42 +193,52 @@ def online_target(ev, fps):
         f"online hand: {len(d)} standing steps inside a push window; the hand ended {q[1]:.3f} m "
         f"(median; quartiles {q[0]:.3f}-{q[2]:.3f} m) from the point its targets aimed at"
     )
-    if not points or len(set(fps.values())) != 1:
+    if not points:
+        return
+    if len(set(fps.values())) != 1:
+        print("online hand: the clips have different rates, so the lead's steps are not one number; stopping here")
         return
     # in the frame of the root: the targets are joint rotations, so a
     # point aimed at from the root before step t moves with the root
     # afterwards; the root before step t is the one recorded after t - 1
-    at = {(ro["trial"][i], ro["step"][i]): i for i, m in enumerate(ro["metric"]) if m == "sr"}
+    def key(i, step=None):
+        return (ro["from_skill"][i], ro["to_skill"][i], ro["trial"][i], ro["step"][i] if step is None else step)
+
+    at = {key(i): i for i, m in enumerate(ro["metric"]) if m == "sr"}
 
     def local(i, p):
         return to_root(ro["root_pos"][i], ro["root_rot"][i], p)
 
     aims = {}
     for i in rows:
-        key = (ro["trial"][i], ro["step"][i])
-        before = at.get((key[0], key[1] - 1))
-        if before is not None:
-            aims[key] = [local(before, ro[c][i]) for c in ("hand_target", "hand_target_posed", "hand_target_applied")]
+        k = key(i)
+        before = at.get(key(i, k[3] - 1))
+        pts = [ro[c][i] for c in ("hand_target", "hand_target_posed", "hand_target_applied")]
+        if before is not None and all(p is not None for p in pts):
+            aims[k] = [local(before, p) for p in pts]
     if not aims:
         return
     solver = [math.dist(a, b) for a, b, _ in aims.values()]
     policy = [math.dist(b, c) for _, b, c in aims.values()]
     print(
-        f"online hand, in the root's frame over {len(aims)} steps (median): the solved pose puts the hand "
+        f"online hand, over {len(aims)} steps (median): the feed-forward pose puts the hand "
         f"{statistics.median(solver):.3f} m from the aimed point; the policy's residual moves it "
         f"{statistics.median(policy):.3f} m from there"
     )
+    # k = 0 is the hand one step after the targets were set, k = lead - 1
+    # the lead's time after
     lead = round(LEAD_S * next(iter(fps.values())))
-    for k in range(lead + 1):
+    for k in range(lead):
         g = []
-        for (t, s), pts in aims.items():
-            later = at.get((t, s + k))
-            if later is not None and all((t, s + j) in aims for j in range(1, k + 1)):
-                h = local(later, ro["hand_pos"][later])
+        for (fr, to, t, s), pts in aims.items():
+            later = at.get((fr, to, t, s + k))
+            if later is not None and all((fr, to, t, s + j) in aims for j in range(1, k + 1)):
+                h = local(later, ro["pushing_hand_pos"][later])
                 g.append([math.dist(p, h) for p in pts])
         if g:
             print(
-                f"  hand after step t + {k} from step t's aimed point / feed-forward pose / applied targets: "
+                f"  in the root's frame, hand after step t + {k} ({k + 1} steps) from step t's aimed point / "
+                "feed-forward pose / applied targets: "
                 + " / ".join(f"{statistics.median(x[c] for x in g):.3f}" for c in range(3))
                 + f" m ({len(g)} steps)"
             )

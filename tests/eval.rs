@@ -188,7 +188,7 @@ fn eval_gives_the_share_of_trials_standing_from_each_trials_first_fall() {
             s.hand_target.is_none()
                 && s.hand_target_posed.is_none()
                 && s.hand_target_applied.is_none()
-                && s.hand_pos.is_none(),
+                && s.pushing_hand_pos.is_none(),
             "step {}",
             s.step
         );
@@ -598,13 +598,13 @@ fn a_policy_trained_with_its_hand_following_the_ball_is_evaluated_with_it() {
     // tests/train.rs moves it 0.535 m of the 0.6 asked); the steps outside
     // the windows have none
     let dist = |a: [f32; 3], b: [f32; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>().sqrt();
-    let mut solver: Vec<f32> = Vec::new();
+    let (mut solver, mut shift): (Vec<f32>, Vec<f32>) = (Vec::new(), Vec::new());
     for s in &steps {
         let points = [
             s.hand_target,
             s.hand_target_posed,
             s.hand_target_applied,
-            s.hand_pos,
+            s.pushing_hand_pos,
         ];
         let Some(d) = s.hand_target_distance else {
             assert!(points.iter().all(Option::is_none), "step {}", s.step);
@@ -614,13 +614,27 @@ fn a_policy_trained_with_its_hand_following_the_ball_is_evaluated_with_it() {
             panic!("step {}: an aimed step lacks a point: {points:?}", s.step);
         };
         assert!((dist(aim, hand) - d).abs() < 1e-4, "step {}", s.step);
-        assert!(applied.iter().all(|v| v.is_finite()), "step {}", s.step);
         solver.push(dist(aim, posed));
+        shift.push(dist(posed, applied));
     }
     solver.sort_by(f32::total_cmp);
+    shift.sort_by(f32::total_cmp);
+    let median = |v: &[f32]| v[v.len() / 2];
+    eprintln!(
+        "solver residual median {:.4} m, the policy's shift median {:.4} m",
+        median(&solver),
+        median(&shift)
+    );
+    // measured here: 4.6 mm (medians of 4 and 25 mm in the 3.0M
+    // recordings of docs/training.md)
+    assert!(median(&solver) < 0.05, "solver residuals {solver:?}");
+    // the applied targets are the feed-forward plus the residual of a
+    // policy trained this little (its head starts within ±0.01), so from
+    // the same root they put the hand next to the feed-forward's (0.2 mm
+    // measured here), but not on it
     assert!(
-        solver[solver.len() / 2] < 0.1,
-        "solver residuals {solver:?}"
+        median(&shift) > 0.0 && median(&shift) < 0.01,
+        "shifts {shift:?}"
     );
     let mut d: Vec<f32> = aimed.iter().map(|x| x.1).collect();
     d.sort_by(f32::total_cmp);

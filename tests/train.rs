@@ -2312,22 +2312,42 @@ fn the_push_warm_start_fits_the_searched_offsets_inside_push_windows() {
 
     // with a smaller residual on the arms (`train.residual_scale`), the
     // policy's part that adds the same offset is as much larger there
-    // (clamped to [-1, 1]); the offsets are zero off the arms
+    // (clamped to [-1, 1]) and unchanged elsewhere: the searched offsets
+    // are zero off the arms, so every window gets 0.3 rad on the first
+    // joint off the arms (a leg) as well
+    let arm_mask = skillaug::rl::humanoid::JointSet::Arms.mask(&s.model);
+    let leg = arm_mask
+        .iter()
+        .position(|on| !on)
+        .expect("a joint off the arms");
+    let mut both = pushes.clone();
+    for p in &mut both {
+        p.offset[3 * leg..3 * leg + 3].copy_from_slice(&[0.3; 3]);
+    }
+    let plain = environment(&s, &cfg, None, 2, &[], &mut rng).unwrap();
+    let (_, full) = plain.warm_start_data(&s.clips, 0, &both, &mut rng).unwrap();
     let scaled = TrainConfig {
         residual_scale: 0.5,
         residual_scale_joints: skillaug::rl::humanoid::JointSet::Arms,
         ..cfg.clone()
     };
     let env = environment(&s, &scaled, None, 2, &[], &mut rng).unwrap();
-    let (_, half) = env.warm_start_data(&s.clips, 0, &pushes, &mut rng).unwrap();
-    assert_eq!(half.len(), targets.len());
-    let mut larger = 0;
-    for (h, t) in half.iter().zip(&targets) {
-        let want = (t / 0.5).clamp(-1.0, 1.0);
-        assert!((h - want).abs() < 1e-6, "{h} against {want}");
+    let (_, half) = env.warm_start_data(&s.clips, 0, &both, &mut rng).unwrap();
+    assert_eq!(half.len(), full.len());
+    let (mut larger, mut leg_values) = (0, 0);
+    for (i, (h, t)) in half.iter().zip(&full).enumerate() {
+        let on_arm = arm_mask[i % ad / 3];
+        let want = if on_arm {
+            (t / 0.5).clamp(-1.0, 1.0)
+        } else {
+            *t
+        };
+        assert!((h - want).abs() < 1e-6, "value {i}: {h} against {want}");
         larger += usize::from(h.abs() > t.abs());
+        leg_values += usize::from(!on_arm && *t != 0.0);
     }
     assert!(larger > 0, "no offset target grew");
+    assert!(leg_values > 0, "no offset off the arms to keep");
 
     // an unknown joint group is refused, naming the key
     let (_dir, run) = ingested("ballplay");
@@ -2381,11 +2401,16 @@ fn a_residual_scale_shrinks_the_policy_s_part_of_the_pd_targets_on_its_joints() 
         ],
         "train.residual_scale_joints = \"arms\"",
     );
-    refused(
-        &run,
-        &["train.residual_action=true", "train.residual_scale=2"],
-        "residual_scale",
-    );
+    for bad in ["2", "0"] {
+        refused(
+            &run,
+            &[
+                "train.residual_action=true",
+                &format!("train.residual_scale={bad}"),
+            ],
+            &format!("train.residual_scale = {bad}: must be a finite number in [0.01, 1]"),
+        );
+    }
 }
 
 #[test]

@@ -243,7 +243,7 @@ impl Evaluator<'_> {
                         hand_target: rec.hand_target,
                         hand_target_posed: rec.hand_target_posed,
                         hand_target_applied: rec.hand_target_applied,
-                        hand_pos: rec.hand_pos,
+                        pushing_hand_pos: rec.pushing_hand_pos,
                     });
                 }
                 if r.terminated[e] || r.truncated[e] {

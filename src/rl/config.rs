@@ -212,8 +212,8 @@ pub struct TrainConfig {
     pub noise_correlation_joints: JointSet,
     /// With `residual_action`: factor on the policy's residual of the
     /// joints in `residual_scale_joints`, so their PD targets are
-    /// π·clamp(e/π + scale·a, −1, 1)
-    /// ([`crate::rl::humanoid::EnvConfig::residual_scale`]); 1 = π·a on
+    /// π·clamp(f + scale·a, −1, 1), f the feed-forward action
+    /// ([`crate::rl::humanoid::EnvConfig::residual_scale`]); 1 = f + a on
     /// every joint. In training and in the evaluation of the policy. Not
     /// in the paper or the reference code. Not written when 1.
     #[serde(skip_serializing_if = "is_one_f64")]

@@ -212,9 +212,10 @@ pub struct EnvConfig {
     pub velocity_feed_forward_joints: JointSet,
     /// With [`EnvConfig::residual_action`]: factor on the policy's residual
     /// of the joints in [`EnvConfig::residual_scale_joints`], so their PD
-    /// targets are π·clamp(e/π + scale·a, −1, 1): the feed-forward pose
-    /// weighs more against the policy's correction, and the action noise
-    /// moves those targets `scale` times as far; 1 = π·a on every joint.
+    /// targets are π·clamp(f + scale·a, −1, 1) rad, f the feed-forward
+    /// action (`Episode::ff`): the feed-forward pose weighs more against
+    /// the policy's correction, and the action noise moves those targets
+    /// `scale` times as far; 1 = f + a on every joint.
     pub residual_scale: f32,
     /// Which joints' residual [`EnvConfig::residual_scale`] scales.
     pub residual_scale_joints: JointSet,
@@ -825,9 +826,10 @@ struct HandAim {
     body: usize,
     /// The point its targets were solved towards, m, world.
     aimed: [f64; 3],
-    /// Where the solved target pose puts the body, m, world: forward
-    /// kinematics of the targets from the simulated root before the step
-    /// (the solver's residual is its distance from `aimed`).
+    /// Where the feed-forward targets put the body, m, world: forward
+    /// kinematics of the solved pose, as the drives get it (clamped to
+    /// ±π, with a push offset where one applies), from the simulated root
+    /// before the step.
     posed: [f64; 3],
     /// The simulated root before the step (position, m; rotation x, y,
     /// z, w), which `posed` is rooted at.
@@ -909,22 +911,22 @@ pub struct RecordedStep {
     /// `None` otherwise.
     pub hand_target_distance: Option<f32>,
     /// At the same steps: the point the pushing hand's targets were
-    /// solved towards before the step (world frame, m), and that hand
-    /// body's origin after the step (m), so that how far the hand is from
-    /// a point aimed at several steps earlier can be read afterwards (the
-    /// point leads the simulated ball by the drives' time constant,
-    /// [`crate::sim::hand_path::REACH_LEAD_S`]); `None` otherwise.
+    /// solved towards before the step, m, world (above the simulated ball,
+    /// led by [`crate::sim::hand_path::REACH_LEAD_S`] of the reference
+    /// ball's motion, capped at the window's reach); `None` otherwise.
     pub hand_target: Option<[f32; 3]>,
-    /// At the same steps: where the solved target pose puts that body,
-    /// m, world (forward kinematics from the simulated root before the
-    /// step; its distance from `hand_target` is the solver's residual).
+    /// At the same steps: where the feed-forward targets (the solved pose
+    /// as the drives get it) put that body, m, world (forward kinematics
+    /// from the simulated root before the step; its distance from
+    /// `hand_target` is the solver's residual).
     pub hand_target_posed: Option<[f32; 3]>,
     /// At the same steps: where the targets the step applied (the
     /// feed-forward plus the policy's residual) put that body, from the
     /// same root, m, world.
     pub hand_target_applied: Option<[f32; 3]>,
-    /// See [`RecordedStep::hand_target`].
-    pub hand_pos: Option<[f32; 3]>,
+    /// At the same steps: the pushing hand body's origin after the step,
+    /// m, world.
+    pub pushing_hand_pos: Option<[f32; 3]>,
 }
 
 /// What drives one environment's step: the policy's action (`act_dim`
@@ -1362,19 +1364,7 @@ impl Ctx<'_> {
         if self.cfg.residual_action {
             let total = residual_targets(a, &ep.ff, &self.residual_gain);
             if let Some(aim) = ep.hand_target.as_mut().filter(|_| record) {
-                // the joint targets as World::apply_action sets them
-                let e: Vec<f32> = total
-                    .iter()
-                    .map(|v| std::f32::consts::PI * v.clamp(-1.0, 1.0))
-                    .collect();
-                let (root, rot) = aim.root;
-                aim.applied = Some(crate::sim::hand_path::body_position(
-                    &self.model,
-                    root,
-                    rot,
-                    &e,
-                    aim.body,
-                ));
+                aim.applied = Some(self.posed_body(aim.body, aim.root, &total));
             }
             if self.cfg.velocity_feed_forward {
                 w.apply_action_with_rates(&total, &ep.ff_rates);
@@ -1506,7 +1496,7 @@ impl Ctx<'_> {
             hand_target: aimed.map(|a| a.aimed.map(|v| v as f32)),
             hand_target_posed: aimed.map(|a| a.posed.map(|v| v as f32)),
             hand_target_applied: aimed.and_then(|a| a.applied).map(|p| p.map(|v| v as f32)),
-            hand_pos: aimed.map(|a| std::array::from_fn(|k| s.body_pos[3 * a.body + k])),
+            pushing_hand_pos: aimed.map(|a| std::array::from_fn(|k| s.body_pos[3 * a.body + k])),
         });
         ep.prev_joint_vel = s.joint_vel;
         Outcome {
@@ -1604,13 +1594,24 @@ impl Ctx<'_> {
                     None => r.joint_rot.clone(),
                 };
                 let (e, aim) = self.hand_on_ball(ep, s, &r, e);
-                ep.hand_target = aim;
                 ep.ff = feed_forward(&e);
                 ep.ff_plain.clear();
                 if let Some(p) = self.push_window(ep) {
                     let pushed: Vec<f32> = e.iter().zip(&p.offset).map(|(e, o)| e + o).collect();
                     ep.ff_plain = std::mem::replace(&mut ep.ff, feed_forward(&pushed));
                 }
+                // posed by the feed-forward as the drives get it (clamped,
+                // with a push offset where one applies)
+                ep.hand_target = aim.map(|(body, aimed)| {
+                    let root = (s.root_pos, s.root_rot);
+                    HandAim {
+                        body,
+                        aimed,
+                        posed: self.posed_body(body, root, &ep.ff),
+                        root,
+                        applied: None,
+                    }
+                });
                 if self.cfg.velocity_feed_forward {
                     ep.ff_rates = self.ff_rates(&r.joint_rot, &r.joint_vel);
                 }
@@ -1636,7 +1637,7 @@ impl Ctx<'_> {
         s: &State,
         next: &State,
         e: Vec<f32>,
-    ) -> (Vec<f32>, Option<HandAim>) {
+    ) -> (Vec<f32>, Option<(usize, [f64; 3])>) {
         if self.cfg.ball_hand.is_empty() || s.obj_pos.len() < 3 || next.obj_pos.len() < 3 {
             return (e, None);
         }
@@ -1692,20 +1693,20 @@ impl Ctx<'_> {
         let (e, aimed) =
             crate::sim::hand_path::reach(&self.model, hand, root, s.root_rot, &e, target, weight);
         // the point is recorded only inside the window proper
-        let aim = (weight >= 1.0).then(|| HandAim {
-            body: hand.body,
-            aimed,
-            posed: crate::sim::hand_path::body_position(
-                &self.model,
-                root,
-                s.root_rot,
-                &e,
-                hand.body,
-            ),
-            root: (root, s.root_rot),
-            applied: None,
-        });
-        (e, aim)
+        (e, (weight >= 1.0).then_some((hand.body, aimed)))
+    }
+
+    /// Where the PD targets of `action` (`[J*3]`, as
+    /// [`World::apply_action`] maps it: π·clamp(x, −1, 1) rad,
+    /// [`crate::sim::world::pd_target`]) put `body`, m, world, in a pose
+    /// rooted at `root` (position, m; rotation x, y, z, w): forward
+    /// kinematics ([`crate::sim::hand_path::body_position`]).
+    fn posed_body(&self, body: usize, root: ([f32; 3], [f32; 4]), action: &[f32]) -> [f64; 3] {
+        let e: Vec<f32> = action
+            .iter()
+            .map(|&a| crate::sim::world::pd_target(a))
+            .collect();
+        crate::sim::hand_path::body_position(&self.model, root.0, root.1, &e, body)
     }
 
     /// The window of [`EnvConfig::push_feed_forward`] whose offset the

@@ -486,6 +486,13 @@ fn geom_collider(g: &super::mjcf::Geom, body: &str) -> Result<ColliderBuilder> {
 /// ball-energy term uses it too, `crate::reward::Errors::oe`).
 pub const GRAVITY: f64 = 9.81;
 
+/// The PD target, rad, that [`World::apply_action`] sets for one action
+/// value `a`: π·clamp(a, −1, 1) (Eq. 11's scaling, as the reference code's
+/// `humanoid_task.py` maps actions to joint targets).
+pub fn pd_target(a: f32) -> f32 {
+    std::f32::consts::PI * a.clamp(-1.0, 1.0)
+}
+
 impl World {
     /// Build a world from a humanoid model and objects.
     pub fn new(model: &Model, objects: &[ObjectSpec], opts: &SimOptions) -> Result<World> {
@@ -796,7 +803,7 @@ impl World {
 
     fn apply(&mut self, action: &[f32], rates: Option<&[f32]>) {
         assert_eq!(action.len(), self.targets.len(), "one action per DoF");
-        let t = |a: f32| std::f32::consts::PI * a.clamp(-1.0, 1.0);
+        let t = pd_target;
         for (j, a) in action.chunks_exact(3).enumerate() {
             let r = rates.map_or([0.0; 3], |r| [r[3 * j], r[3 * j + 1], r[3 * j + 2]]);
             self.set_joint_target(j, [t(a[0]), t(a[1]), t(a[2])], r);

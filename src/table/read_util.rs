@@ -3,7 +3,7 @@
 use super::io::ReadTable;
 use anyhow::{anyhow, bail, Result};
 use arrow::array::{Array, ArrayRef, AsArray, FixedSizeListArray, ListArray};
-use arrow::datatypes::Float32Type;
+use arrow::datatypes::{DataType, Float32Type};
 use arrow::record_batch::RecordBatch;
 use std::path::Path;
 
@@ -95,6 +95,14 @@ pub fn opt_f32x3s_if_present(
     let Some(a) = b.column_by_name(name) else {
         return Ok(vec![None; b.num_rows()]);
     };
+    let fits = matches!(a.data_type(), DataType::FixedSizeList(f, 3) if f.data_type() == &DataType::Float32);
+    if !fits {
+        bail!(
+            "{}: column `{name}` is {}, not FixedSizeList<Float32, 3>",
+            path.display(),
+            a.data_type()
+        );
+    }
     (0..a.len())
         .map(|i| {
             f32_row(a, i)

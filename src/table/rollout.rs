@@ -55,8 +55,9 @@ pub struct RolloutStep {
     /// towards before the step, world frame, m (None: outside, off, or an
     /// older table).
     pub hand_target: Option<[f32; 3]>,
-    /// At the same steps: where the solved target pose puts the pushing
-    /// hand body, from the simulated root before the step, world frame, m.
+    /// At the same steps: where the feed-forward targets (the solved pose
+    /// as the drives get it) put the pushing hand body, from the simulated
+    /// root before the step, world frame, m.
     pub hand_target_posed: Option<[f32; 3]>,
     /// At the same steps: where the targets the step applied (the
     /// feed-forward plus the policy's residual) put that body, from the
@@ -64,7 +65,7 @@ pub struct RolloutStep {
     pub hand_target_applied: Option<[f32; 3]>,
     /// At the same steps: the pushing hand body's origin after the step,
     /// world frame, m (None: outside, off, or an older table).
-    pub hand_pos: Option<[f32; 3]>,
+    pub pushing_hand_pos: Option<[f32; 3]>,
 }
 
 impl TableRow for RolloutStep {
@@ -89,10 +90,10 @@ impl TableRow for RolloutStep {
             Column::new("hand_ball_distance", "smallest distance from a hand body's origin (wrist or finger joint) to object 0's centre over the step's physics substeps, m; null without an object", |r: &R| r.hand_ball_distance),
             Column::new("hand_ball_touch", "a hand body's collider touched object 0 at any physics substep of the step; null without an object", |r: &R| r.hand_ball_touch),
             Column::new("hand_target_distance", "with train.hand_follows_ball, at a step whose reference frame is inside a push window proper (weight 1): the distance from the pushing hand body's origin after the step to the point its targets were solved towards (above the simulated ball, within train.hand_follows_ball_reach of the reference's hand), m; null otherwise", |r: &R| r.hand_target_distance),
-            Column::new("hand_target", "at the steps of hand_target_distance: the point the pushing hand's targets were solved towards before the step (it leads the simulated ball by the drives' time constant, 0.1 s of the reference ball's motion relative to its root), world frame, m; null otherwise", |r: &R| r.hand_target),
-            Column::new("hand_target_posed", "at the same steps: where the targets' pose, solved towards hand_target, puts the pushing hand body (forward kinematics from the simulated root before the step; its distance from hand_target is the solver's residual), world frame, m; null otherwise", |r: &R| r.hand_target_posed),
+            Column::new("hand_target", "at the steps of hand_target_distance: the point the pushing hand's targets were solved towards before the step (above the simulated ball, led by 0.1 s of the reference ball's motion relative to its root, the drives' time constant, and capped at train.hand_follows_ball_reach from the reference's hand), world frame, m; null otherwise", |r: &R| r.hand_target),
+            Column::new("hand_target_posed", "at the same steps: where the feed-forward targets (the pose solved towards hand_target, as the drives get it: clamped to +-pi, with a push offset where one applies) put the pushing hand body (forward kinematics from the simulated root before the step; its distance from hand_target is the solver's residual), world frame, m; null otherwise", |r: &R| r.hand_target_posed),
             Column::new("hand_target_applied", "at the same steps: where the joint targets the step applied (the feed-forward of hand_target_posed plus the policy's residual) put the pushing hand body, from the same root, world frame, m; null otherwise", |r: &R| r.hand_target_applied),
-            Column::new("hand_pos", "at the same steps: the pushing hand body's origin after the step, world frame, m; null otherwise", |r: &R| r.hand_pos),
+            Column::new("pushing_hand_pos", "at the same steps: the pushing hand body's origin after the step, world frame, m; null otherwise", |r: &R| r.pushing_hand_pos),
         ]
     }
 }
@@ -128,7 +129,7 @@ pub fn read(path: &Path) -> Result<Vec<RolloutStep>> {
         let target = opt_f32x3s_if_present(b, "hand_target", path)?;
         let posed = opt_f32x3s_if_present(b, "hand_target_posed", path)?;
         let applied = opt_f32x3s_if_present(b, "hand_target_applied", path)?;
-        let hand = opt_f32x3s_if_present(b, "hand_pos", path)?;
+        let hand = opt_f32x3s_if_present(b, "pushing_hand_pos", path)?;
         let sm = col(b, "sm_reward", path)?
             .as_primitive_opt::<Float64Type>()
             .ok_or_else(|| anyhow!("{}: column `sm_reward` is not Float64", path.display()))?
@@ -151,7 +152,7 @@ pub fn read(path: &Path) -> Result<Vec<RolloutStep>> {
                 hand_target: target[i],
                 hand_target_posed: posed[i],
                 hand_target_applied: applied[i],
-                hand_pos: hand[i],
+                pushing_hand_pos: hand[i],
             });
         }
     }
