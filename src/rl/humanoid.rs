@@ -826,18 +826,16 @@ struct HandAim {
     body: usize,
     /// The point its targets were solved towards, m, world.
     aimed: [f64; 3],
-    /// Where the feed-forward targets put the body, m, world: forward
-    /// kinematics of the solved pose, as the drives get it (clamped to
-    /// ±π, with a push offset where one applies), from the simulated root
-    /// before the step.
-    posed: [f64; 3],
     /// The simulated root before the step (position, m; rotation x, y,
-    /// z, w), which `posed` is rooted at.
+    /// z, w).
     root: ([f32; 3], [f32; 4]),
-    /// Where the targets the step applied (the feed-forward plus the
-    /// policy's residual) put the body from that root, m, world; set when
-    /// the step is recorded.
-    applied: Option<[f64; 3]>,
+    /// Set when the step is recorded (forward kinematics is left off the
+    /// training path): where the feed-forward targets put the body (the
+    /// solved pose as the drives get it: clamped to ±π, with a push
+    /// offset where one applies), and where the targets the step applied
+    /// (that plus the policy's residual) put it, m, world, both from
+    /// `root`.
+    posed_applied: Option<([f64; 3], [f64; 3])>,
 }
 
 impl Episode {
@@ -1364,7 +1362,10 @@ impl Ctx<'_> {
         if self.cfg.residual_action {
             let total = residual_targets(a, &ep.ff, &self.residual_gain);
             if let Some(aim) = ep.hand_target.as_mut().filter(|_| record) {
-                aim.applied = Some(self.posed_body(aim.body, aim.root, &total));
+                aim.posed_applied = Some((
+                    self.posed_body(aim.body, aim.root, &ep.ff),
+                    self.posed_body(aim.body, aim.root, &total),
+                ));
             }
             if self.cfg.velocity_feed_forward {
                 w.apply_action_with_rates(&total, &ep.ff_rates);
@@ -1494,8 +1495,12 @@ impl Ctx<'_> {
                 d2.sqrt() as f32
             }),
             hand_target: aimed.map(|a| a.aimed.map(|v| v as f32)),
-            hand_target_posed: aimed.map(|a| a.posed.map(|v| v as f32)),
-            hand_target_applied: aimed.and_then(|a| a.applied).map(|p| p.map(|v| v as f32)),
+            hand_target_posed: aimed
+                .and_then(|a| a.posed_applied)
+                .map(|(p, _)| p.map(|v| v as f32)),
+            hand_target_applied: aimed
+                .and_then(|a| a.posed_applied)
+                .map(|(_, p)| p.map(|v| v as f32)),
             pushing_hand_pos: aimed.map(|a| std::array::from_fn(|k| s.body_pos[3 * a.body + k])),
         });
         ep.prev_joint_vel = s.joint_vel;
@@ -1600,17 +1605,11 @@ impl Ctx<'_> {
                     let pushed: Vec<f32> = e.iter().zip(&p.offset).map(|(e, o)| e + o).collect();
                     ep.ff_plain = std::mem::replace(&mut ep.ff, feed_forward(&pushed));
                 }
-                // posed by the feed-forward as the drives get it (clamped,
-                // with a push offset where one applies)
-                ep.hand_target = aim.map(|(body, aimed)| {
-                    let root = (s.root_pos, s.root_rot);
-                    HandAim {
-                        body,
-                        aimed,
-                        posed: self.posed_body(body, root, &ep.ff),
-                        root,
-                        applied: None,
-                    }
+                ep.hand_target = aim.map(|(body, aimed)| HandAim {
+                    body,
+                    aimed,
+                    root: (s.root_pos, s.root_rot),
+                    posed_applied: None,
                 });
                 if self.cfg.velocity_feed_forward {
                     ep.ff_rates = self.ff_rates(&r.joint_rot, &r.joint_vel);
