@@ -79,7 +79,8 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
     // waits and skips are rebuilt by the replay of each episode's actions)
     // a reference ball whose flights are simulated, and feed-forward
     // targets whose pushing hand follows the simulated ball (solved again
-    // at every replayed step), a smaller residual on the arms
+    // at every replayed step), a smaller residual on the arms, and a floor
+    // under the ball's reward factors, fading as the assist does
     killed_and_resumed_matches_uninterrupted(
         false,
         &[
@@ -163,6 +164,10 @@ fn a_run_with_every_new_training_setting_killed_and_resumed_matches_too() {
             "train.residual_scale=0.5",
             "--set",
             "train.residual_scale_joints=arms",
+            "--set",
+            "train.object_floor=0.5",
+            "--set",
+            "train.object_floor_samples=3840",
         ],
     );
 }
@@ -1425,6 +1430,118 @@ fn the_energy_bonus_adds_to_the_training_reward_not_the_reported_sm() {
                 ..base.clone()
             },
             "train.energy_bonus_scale",
+        ),
+    ] {
+        let e = skillaug::config::Validate::validate(&bad, "train")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(key), "{e}");
+    }
+}
+
+#[test]
+fn a_floor_under_the_ball_s_factors_keeps_part_of_the_body_s_training_reward() {
+    // `train.object_floor = e`: every step's training reward is
+    // r_b (e + (1 - e) r_o r_rel r_cg), so over the same rollout (zero
+    // actions, same seed) it sums to e sum(r_b) + (1 - e) sum(SM), and the
+    // SM reward that training reports is scored as before
+    let (_dir, s, base, paper) = dribble_with_the_papers_reward();
+    let run = |cfg: &TrainConfig| zero_action_stats(&s, cfg);
+    let body_sum = paper.sm_factor_sums[0];
+    // (the ball's factors are below 1 somewhere, else no floor could tell)
+    assert!(
+        paper.sm_sum < 0.99 * body_sum,
+        "{} vs {body_sum}",
+        paper.sm_sum
+    );
+    for e in [0.25, 1.0] {
+        let f = run(&TrainConfig {
+            object_floor: e,
+            ..base.clone()
+        });
+        assert_eq!(f.steps, paper.steps);
+        assert_eq!(f.sm_sum, paper.sm_sum);
+        assert_eq!(f.sm_factor_sums, paper.sm_factor_sums);
+        let want = e * body_sum + (1.0 - e) * paper.sm_sum;
+        eprintln!(
+            "floor {e}: training reward {:.4}, want {want:.4}",
+            f.reward_sum
+        );
+        assert!(
+            (f.reward_sum - want).abs() < 1e-9 * want,
+            "{} vs {want}",
+            f.reward_sum
+        );
+    }
+    // the floor fades linearly to 0 over `object_floor_samples`, or stays
+    let fading = TrainConfig {
+        object_floor: 0.8,
+        object_floor_samples: 1000,
+        ..base.clone()
+    };
+    assert_eq!(fading.object_floor_at(0), 0.8);
+    assert!((fading.object_floor_at(250) - 0.6).abs() < 1e-12);
+    assert_eq!(fading.object_floor_at(1000), 0.0);
+    assert_eq!(fading.object_floor_at(4000), 0.0);
+    let constant = TrainConfig {
+        object_floor: 0.8,
+        ..base.clone()
+    };
+    assert_eq!(constant.object_floor_at(1 << 40), 0.8);
+    // the trainer sets each iteration's floor from the samples learnt so
+    // far: 32 samples per iteration fading over 64, so the first iteration
+    // trains on r_b alone, the second on half the floor, and from the third
+    // the training reward is the reported SM reward itself
+    let (dir, run) = ingested("ballplay");
+    let out = dir.path().join("fade");
+    ok(&train_args(
+        run.to_str().unwrap(),
+        out.to_str().unwrap(),
+        &[
+            "--set",
+            "train.skills=[\"run\"]",
+            "--set",
+            "train.samples=160",
+            "--set",
+            "train.object_floor=1",
+            "--set",
+            "train.object_floor_samples=64",
+        ],
+    ));
+    let m = metrics(&out);
+    let get = |n: &str| m.iter().find(|(k, _)| k == n).unwrap().1.clone();
+    let (reward, sm) = (get("mean_reward"), get("mean_sm_reward"));
+    eprintln!("training reward {reward:?}\nSM reward {sm:?}");
+    assert_eq!(reward.len(), 5);
+    assert!(
+        reward[0] > sm[0] && reward[1] > sm[1],
+        "{reward:?} vs {sm:?}"
+    );
+    assert_eq!(reward[2..], sm[2..]);
+    // out of range, without the SM reward, or a fade of no floor: refused,
+    // naming the key
+    for (bad, key) in [
+        (
+            TrainConfig {
+                object_floor: 1.5,
+                ..base.clone()
+            },
+            "train.object_floor",
+        ),
+        (
+            TrainConfig {
+                object_floor: 0.5,
+                method: skillaug::rl::humanoid::Method::Dm,
+                ..base.clone()
+            },
+            "train.object_floor",
+        ),
+        (
+            TrainConfig {
+                object_floor_samples: 1000,
+                ..base.clone()
+            },
+            "train.object_floor_samples",
         ),
     ] {
         let e = skillaug::config::Validate::validate(&bad, "train")

@@ -655,6 +655,19 @@ pub fn sm_terms(
     }
 }
 
+/// The SM reward with a floor `floor` = ε in [0, 1] under the product of
+/// the ball's factors: r_b (ε + (1 - ε) r_o r_rel r_cg), so a step whose
+/// ball is lost still earns ε of the body's factor, where Eq. 12's product
+/// (ε = 0, `t.total` itself) gives it almost nothing; ε = 1 is r_b alone.
+/// Not in the paper or the reference code (`train.object_floor`,
+/// docs/training.md).
+pub fn floored_total(t: &SmTerms, floor: f64) -> f64 {
+    if floor == 0.0 {
+        return t.total;
+    }
+    t.body * (floor + (1.0 - floor) * (t.object * t.rel * t.cg))
+}
+
 /// DM additive reward (Eq. 18): r_p + r_r + r_rv + r_op, each exp(-lambda
 /// MSE); a term whose weight is zero is left out (Locomotion has no r_op), so
 /// the range is [0, number of weighted terms]. `root` compares the root

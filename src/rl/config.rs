@@ -354,6 +354,22 @@ pub struct TrainConfig {
     /// default, [`crate::reward::ENERGY_BONUS_SCALE`]).
     #[serde(skip_serializing_if = "is_default_energy_bonus_scale")]
     pub energy_bonus_scale: f64,
+    /// Floor ε under the product of the ball's factors in the SM training
+    /// reward, in [0, 1] (0 = off, Eq. 12): at every step of a class with
+    /// an object the training reward is r_b (ε + (1 - ε) r_o r_rel r_cg)
+    /// ([`crate::reward::floored_total`]), so a step whose ball is lost
+    /// keeps ε of the body's factor; 1 trains on r_b alone. Fades
+    /// linearly to 0 over `object_floor_samples` when that is > 0
+    /// ([`TrainConfig::object_floor_at`]): a curriculum from the body to
+    /// the paper's reward. The SM reward that training and evaluation
+    /// report is unchanged. Needs `method = "sm"`. Not in the paper or the
+    /// reference code. Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_f64")]
+    pub object_floor: f64,
+    /// Samples over which `object_floor` fades to 0 (0 = it stays).
+    /// Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_u64")]
+    pub object_floor_samples: u64,
     /// Push offsets as feed-forward: `"off"`, or `"arms"` / `"upper"`:
     /// with `residual_action`, inside every push window of the training
     /// clips the feed-forward PD targets add the offset that `skillaug
@@ -659,6 +675,8 @@ impl Default for TrainConfig {
             object_density: None,
             energy_bonus: 0.0,
             energy_bonus_scale: crate::reward::ENERGY_BONUS_SCALE,
+            object_floor: 0.0,
+            object_floor_samples: 0,
             push_feed_forward: PushJoints::Off,
             push_objective: crate::sim::push::PushObjective::Ball,
             ball_inertia: crate::sim::objects::BallInertia::Solid,
@@ -695,6 +713,17 @@ impl TrainConfig {
         }
         let left = 1.0 - samples as f64 / self.object_assist_samples as f64;
         self.object_assist * left.max(0.0)
+    }
+
+    /// Floor of the ball's factors for a rollout collected after `samples`
+    /// samples: `object_floor`, times (1 - samples / `object_floor_samples`)
+    /// (at least 0) when that is > 0.
+    pub fn object_floor_at(&self, samples: u64) -> f64 {
+        if self.object_floor_samples == 0 {
+            return self.object_floor;
+        }
+        let left = 1.0 - samples as f64 / self.object_floor_samples as f64;
+        self.object_floor * left.max(0.0)
     }
 
     /// The PPO configuration: preset, then overrides.
@@ -759,6 +788,7 @@ impl crate::config::Validate for TrainConfig {
         c.count("sim_start_after", self.sim_start_after as u64, 1, 100_000)?;
         c.range("energy_bonus", self.energy_bonus, 0.0, 100.0)?;
         c.range("energy_bonus_scale", self.energy_bonus_scale, 1e-6, 100.0)?;
+        c.range("object_floor", self.object_floor, 0.0, 1.0)?;
         if let Some(d) = self.object_density {
             c.range("object_density", d, 1.0, 1e5)?;
         }
@@ -841,6 +871,20 @@ impl crate::config::Validate for TrainConfig {
             anyhow::bail!(
                 "{stage}.push_feed_forward adds its offsets to the feed-forward targets of \
                  {stage}.residual_action: set {stage}.residual_action = true, or push_feed_forward = \"off\""
+            );
+        }
+        if self.object_floor > 0.0 && self.method != Method::Sm {
+            anyhow::bail!(
+                "{stage}.object_floor = {} floors the ball's factors of the SM reward's product, \
+                 and {stage}.method is not \"sm\": set method = \"sm\", or object_floor = 0",
+                self.object_floor
+            );
+        }
+        if self.object_floor_samples > 0 && self.object_floor == 0.0 {
+            anyhow::bail!(
+                "{stage}.object_floor_samples = {} says over how many samples {stage}.object_floor \
+                 fades, and that floor is 0: set object_floor > 0, or object_floor_samples = 0",
+                self.object_floor_samples
             );
         }
         if self.object_assist > 0.0 && self.object_assist_samples == 0 {

@@ -292,6 +292,14 @@ pub struct EnvConfig {
     pub energy_bonus: f64,
     /// Scale k of that bonus, (kg/J)^2 (read only when `energy_bonus` > 0).
     pub energy_bonus_scale: f64,
+    /// Floor ε of the ball's factors in the SM training reward
+    /// ([`crate::reward::floored_total`]): at every step of a class with an
+    /// object the training reward is r_b (ε + (1 - ε) r_o r_rel r_cg)
+    /// (0 = Eq. 12's product). The trainer sets it every iteration from
+    /// `train.object_floor`, fading it to 0 when asked. The SM reward that
+    /// training and evaluation report is unchanged. Not in the paper or
+    /// the reference code.
+    pub object_floor: f64,
     /// Push offsets added to the feed-forward PD targets of
     /// [`EnvConfig::residual_action`] (`train.push_feed_forward`): at a
     /// step from an unmasked reference frame `f` of clip `c` to frame
@@ -464,6 +472,7 @@ impl EnvConfig {
             sim_start_after: SIM_START_AFTER,
             energy_bonus: 0.0,
             energy_bonus_scale: crate::reward::ENERGY_BONUS_SCALE,
+            object_floor: 0.0,
             push_feed_forward: Vec::new(),
             ball_hand: Vec::new(),
         }
@@ -1418,9 +1427,19 @@ impl Ctx<'_> {
                 let terms = reward::sm_terms(&e, smooth, r, &c, &ep.sm_weights, opts);
                 let sm = terms.total;
                 let train = match self.cfg.method {
-                    Method::Sm if ep.weights == ep.sm_weights => sm,
-                    // `train.reward_weights`: the same errors, other weights
-                    Method::Sm => reward::sm_terms(&e, smooth, r, &c, &ep.weights, opts).total,
+                    Method::Sm => {
+                        let t = if ep.weights == ep.sm_weights {
+                            terms
+                        } else {
+                            // `train.reward_weights`: the same errors, other weights
+                            reward::sm_terms(&e, smooth, r, &c, &ep.weights, opts)
+                        };
+                        if self.cfg.object_floor > 0.0 && !no_object_class(ep.class) {
+                            reward::floored_total(&t, self.cfg.object_floor)
+                        } else {
+                            t.total
+                        }
+                    }
                     Method::Dm => reward::dm_reward(&s, r, self.sk, &ep.weights, opts.root_rot),
                 };
                 let train = if self.cfg.energy_bonus > 0.0
@@ -2306,6 +2325,12 @@ impl<'a> HumanoidEnv<'a> {
     /// ([`EnvConfig::object_assist`]; 0 = off).
     pub fn set_object_assist(&mut self, strength: f32) {
         self.ctx.cfg.object_assist = strength;
+    }
+
+    /// Set the floor of the ball's factors in the SM training reward for
+    /// the coming steps ([`EnvConfig::object_floor`]; 0 = off).
+    pub fn set_object_floor(&mut self, floor: f64) {
+        self.ctx.cfg.object_floor = floor;
     }
 
     /// The ATS table.

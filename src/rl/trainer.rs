@@ -492,6 +492,7 @@ pub fn environment<'a>(
         sim_start_after: cfg.sim_start_after,
         energy_bonus: cfg.energy_bonus,
         energy_bonus_scale: cfg.energy_bonus_scale,
+        object_floor: cfg.object_floor_at(0),
         push_feed_forward: pushes
             .iter()
             .map(|p| PushFeedForward {
@@ -1586,6 +1587,17 @@ impl<'a> Trainer<'a> {
                 }
             ));
         }
+        if cfg.object_floor > 0.0 {
+            on.push(format!(
+                "object_floor={} (r_b (e + (1 - e) r_o r_rel r_cg){})",
+                cfg.object_floor,
+                if cfg.object_floor_samples > 0 {
+                    format!(", fading to 0 over {} samples", cfg.object_floor_samples)
+                } else {
+                    String::new()
+                }
+            ));
+        }
         if cfg.ball_inertia == crate::sim::objects::BallInertia::Shell {
             on.push("ball_inertia=shell (2/3 m r^2)".to_string());
         }
@@ -1693,6 +1705,8 @@ impl<'a> Trainer<'a> {
         // included, gets the assist of the samples learnt so far
         let assist = self.cfg.object_assist_at(self.samples) as f32;
         self.env.set_object_assist(assist);
+        self.env
+            .set_object_floor(self.cfg.object_floor_at(self.samples));
         let t0 = Instant::now();
         let (c, up, update_s) = if self.cfg.overlap_rollout {
             self.overlapped(critic_only)?
