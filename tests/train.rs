@@ -474,6 +474,15 @@ fn killed_and_resumed_matches_uninterrupted(he: bool, more: &[&str]) {
     );
     assert!(!wa.is_empty());
     assert_eq!(wa, wb, "final weights and optimiser moments differ");
+    // the ATS table holds each finished episode's mean training reward,
+    // those of the episodes replayed after the kill included
+    let ats = |d: &std::path::Path| -> serde_json::Value {
+        let st = std::fs::read_to_string(d.join("checkpoint").join("state.json")).unwrap();
+        serde_json::from_str::<serde_json::Value>(&st).unwrap()["ats"].clone()
+    };
+    let (ats_a, ats_b) = (ats(&a), ats(&b));
+    assert!(ats_a.as_array().is_some_and(|v| !v.is_empty()), "{ats_a}");
+    assert_eq!(ats_a, ats_b, "ATS tables differ");
     // the switches did something: masked steps, STG and neighbourhood starts
     let get = |n: &str| ma.iter().find(|(k, _)| k == n).unwrap().1.clone();
     let mean = |v: Vec<f64>| {
@@ -1473,6 +1482,26 @@ fn a_floor_under_the_ball_s_factors_keeps_part_of_the_body_s_training_reward() {
             f.reward_sum
         );
     }
+    // with `train.reward_weights` the floored product is the one under
+    // those weights (here a ball-velocity weight alone, so r_b is the
+    // paper's)
+    let heavy: skillaug::reward::WeightOverrides = toml::from_str("opv = 5.0").unwrap();
+    let ov = run(&TrainConfig {
+        reward_weights: heavy,
+        ..base.clone()
+    });
+    assert!(ov.reward_sum < 0.99 * paper.sm_sum, "{}", ov.reward_sum);
+    let both = run(&TrainConfig {
+        reward_weights: heavy,
+        object_floor: 0.25,
+        ..base.clone()
+    });
+    let want = 0.25 * body_sum + 0.75 * ov.reward_sum;
+    assert!(
+        (both.reward_sum - want).abs() < 1e-9 * want,
+        "{} vs {want}",
+        both.reward_sum
+    );
     // the floor fades linearly to 0 over `object_floor_samples`, or stays
     let fading = TrainConfig {
         object_floor: 0.8,

@@ -366,8 +366,11 @@ pub struct TrainConfig {
     /// reference code. Not written when 0.
     #[serde(skip_serializing_if = "is_zero_f64")]
     pub object_floor: f64,
-    /// Samples over which `object_floor` fades to 0 (0 = it stays).
-    /// Not written when 0.
+    /// Samples over which `object_floor` fades to 0 (0 = it stays);
+    /// refused without `object_floor`. Each iteration's floor is set from
+    /// the samples learnt before it, so with `overlap_rollout` the rollout
+    /// collected during an update is one iteration behind, as the object
+    /// assist's is. Not written when 0.
     #[serde(skip_serializing_if = "is_zero_u64")]
     pub object_floor_samples: u64,
     /// Push offsets as feed-forward: `"off"`, or `"arms"` / `"upper"`:

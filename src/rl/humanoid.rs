@@ -800,6 +800,9 @@ struct Episode {
     /// Object-assist strength of each step (empty while every step had
     /// none; see [`EpisodeRecord::assists`]).
     assists: Vec<f32>,
+    /// Floor of the ball's reward factors at each step (empty while every
+    /// step had none; see [`EpisodeRecord::floors`]).
+    floors: Vec<f64>,
     prev_joint_vel: Vec<f32>,
     /// Sum and count of the unmasked raw rewards (the ATS statistic).
     sum: f64,
@@ -879,6 +882,11 @@ pub struct EpisodeRecord {
     /// ([`EnvConfig::object_assist`]); empty while every step had none,
     /// a missing tail reads as 0.
     pub assists: Vec<f32>,
+    /// Floor of the ball's factors in the training reward at each step so
+    /// far ([`EnvConfig::object_floor`]), so that a replay scores every
+    /// step as it was scored (the episode's reward sum feeds the ATS
+    /// table); empty while every step had none, a missing tail reads as 0.
+    pub floors: Vec<f64>,
 }
 
 /// What the success rules (`crate::eval::rules`) see after one policy step.
@@ -937,10 +945,12 @@ pub struct RecordedStep {
 }
 
 /// What drives one environment's step: the policy's action (`act_dim`
-/// values) and the object assist's strength ([`EnvConfig::object_assist`]).
+/// values), the object assist's strength ([`EnvConfig::object_assist`])
+/// and the floor of the ball's reward factors ([`EnvConfig::object_floor`]).
 struct Control<'a> {
     action: &'a [f32],
     assist: f32,
+    floor: f64,
 }
 
 /// What one environment reports after a step.
@@ -1331,6 +1341,7 @@ impl Ctx<'_> {
             ats_key,
             t: 0,
             assists: Vec::new(),
+            floors: Vec::new(),
             prev_joint_vel: g.joint_vel.clone(),
             sum: 0.0,
             n: 0,
@@ -1366,7 +1377,11 @@ impl Ctx<'_> {
         record: bool,
         out: &mut [f32],
     ) -> Outcome {
-        let Control { action: a, assist } = control;
+        let Control {
+            action: a,
+            assist,
+            floor,
+        } = control;
         ep.actions.extend_from_slice(a);
         if self.cfg.residual_action {
             let total = residual_targets(a, &ep.ff, &self.residual_gain);
@@ -1387,6 +1402,10 @@ impl Ctx<'_> {
         if assist != 0.0 || !ep.assists.is_empty() {
             ep.assists.resize(ep.t, 0.0);
             ep.assists.push(assist);
+        }
+        if floor != 0.0 || !ep.floors.is_empty() {
+            ep.floors.resize(ep.t, 0.0);
+            ep.floors.push(floor);
         }
         let assisted = assist > 0.0 && w.n_objects() > 0 && !no_object_class(ep.class);
         let pulled = assisted
@@ -1434,8 +1453,8 @@ impl Ctx<'_> {
                             // `train.reward_weights`: the same errors, other weights
                             reward::sm_terms(&e, smooth, r, &c, &ep.weights, opts)
                         };
-                        if self.cfg.object_floor > 0.0 && !no_object_class(ep.class) {
-                            reward::floored_total(&t, self.cfg.object_floor)
+                        if floor > 0.0 && !no_object_class(ep.class) {
+                            reward::floored_total(&t, floor)
                         } else {
                             t.total
                         }
@@ -2562,6 +2581,7 @@ impl<'a> HumanoidEnv<'a> {
                 ats_key: ep.ats_key,
                 actions: ep.actions.clone(),
                 assists: ep.assists.clone(),
+                floors: ep.floors.clone(),
             })
             .collect()
     }
@@ -2590,6 +2610,12 @@ impl<'a> HumanoidEnv<'a> {
                 r.assists.len(),
                 r.actions.len() / ad
             );
+            ensure!(
+                r.floors.len() <= r.actions.len() / ad,
+                "checkpoint episode with {} reward floors for {} steps",
+                r.floors.len(),
+                r.actions.len() / ad
+            );
         }
         let ctx = &self.ctx;
         let he = self.he.as_ref();
@@ -2602,7 +2628,12 @@ impl<'a> HumanoidEnv<'a> {
                 let mut feats = vec![f0];
                 for (i, a) in r.actions.chunks_exact(ad).enumerate() {
                     let assist = r.assists.get(i).copied().unwrap_or(0.0);
-                    let c = Control { action: a, assist };
+                    let floor = r.floors.get(i).copied().unwrap_or(0.0);
+                    let c = Control {
+                        action: a,
+                        assist,
+                        floor,
+                    };
                     let o = ctx.advance(&mut w, &mut ep, c, he, false, &mut row);
                     feats.push(o.feature);
                 }
@@ -2702,7 +2733,7 @@ impl VecEnv for HumanoidEnv<'_> {
         let ctx = &self.ctx;
         let he = self.he.as_ref();
         let record = self.record;
-        let assist = ctx.cfg.object_assist;
+        let (assist, floor) = (ctx.cfg.object_assist, ctx.cfg.object_floor);
         let mut outs: Vec<Outcome> = self
             .worlds
             .par_iter_mut()
@@ -2710,7 +2741,12 @@ impl VecEnv for HumanoidEnv<'_> {
             .zip(self.obs.par_chunks_mut(od))
             .zip(actions.par_chunks_exact(ad))
             .map(|(((w, ep), out), action)| {
-                ctx.advance(w, ep, Control { action, assist }, he, record, out)
+                let c = Control {
+                    action,
+                    assist,
+                    floor,
+                };
+                ctx.advance(w, ep, c, he, record, out)
             })
             .collect();
         let feats: Vec<(usize, Vec<f32>)> = outs

@@ -931,6 +931,11 @@ struct EpisodeMeta {
     /// absent while none was assisted, as in older checkpoints).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     assists: Vec<f32>,
+    /// Floor of the ball's reward factors at each step taken
+    /// (`train.object_floor`; absent while none was set, as in older
+    /// checkpoints).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    floors: Vec<f64>,
 }
 
 fn ckpt_dir(out: &Path) -> PathBuf {
@@ -989,6 +994,7 @@ fn records_of(dir: &Path, file: &str, episodes: &[EpisodeMeta]) -> Result<Vec<Ep
             ats_key: e.ats_key,
             actions,
             assists: e.assists.clone(),
+            floors: e.floors.clone(),
         });
     }
     Ok(recs)
@@ -1589,7 +1595,7 @@ impl<'a> Trainer<'a> {
         }
         if cfg.object_floor > 0.0 {
             on.push(format!(
-                "object_floor={} (r_b (e + (1 - e) r_o r_rel r_cg){})",
+                "object_floor={} (training reward r_b (f + (1 - f) r_o r_rel r_cg), f the floor{})",
                 cfg.object_floor,
                 if cfg.object_floor_samples > 0 {
                     format!(", fading to 0 over {} samples", cfg.object_floor_samples)
@@ -1875,6 +1881,7 @@ impl<'a> Trainer<'a> {
                     ats_key: r.ats_key,
                     actions: r.actions.len(),
                     assists: r.assists.clone(),
+                    floors: r.floors.clone(),
                 })
                 .collect(),
             update_rng: self.update_rng.as_ref().map(RngState::of),
