@@ -489,6 +489,14 @@ fn is_solid(b: &crate::sim::objects::BallInertia) -> bool {
     *b == crate::sim::objects::BallInertia::Solid
 }
 
+/// `start` faded linearly to 0 over `over` > 0 samples, after `samples`:
+/// start (1 - samples / over), at least 0 (the schedule of
+/// [`TrainConfig::object_assist_at`] and [`TrainConfig::object_floor_at`]).
+fn faded(start: f64, samples: u64, over: u64) -> f64 {
+    let left = 1.0 - samples as f64 / over as f64;
+    start * left.max(0.0)
+}
+
 fn is_default_energy_bonus_scale(x: &f64) -> bool {
     *x == crate::reward::ENERGY_BONUS_SCALE
 }
@@ -714,8 +722,7 @@ impl TrainConfig {
         if self.object_assist <= 0.0 || self.object_assist_samples == 0 {
             return 0.0;
         }
-        let left = 1.0 - samples as f64 / self.object_assist_samples as f64;
-        self.object_assist * left.max(0.0)
+        faded(self.object_assist, samples, self.object_assist_samples)
     }
 
     /// Floor of the ball's factors for a rollout collected after `samples`
@@ -725,8 +732,7 @@ impl TrainConfig {
         if self.object_floor_samples == 0 {
             return self.object_floor;
         }
-        let left = 1.0 - samples as f64 / self.object_floor_samples as f64;
-        self.object_floor * left.max(0.0)
+        faded(self.object_floor, samples, self.object_floor_samples)
     }
 
     /// The PPO configuration: preset, then overrides.

@@ -1453,10 +1453,10 @@ impl Ctx<'_> {
                             // `train.reward_weights`: the same errors, other weights
                             reward::sm_terms(&e, smooth, r, &c, &ep.weights, opts)
                         };
-                        if floor > 0.0 && !no_object_class(ep.class) {
-                            reward::floored_total(&t, floor)
-                        } else {
+                        if no_object_class(ep.class) {
                             t.total
+                        } else {
+                            reward::floored_total(&t, floor)
                         }
                     }
                     Method::Dm => reward::dm_reward(&s, r, self.sk, &ep.weights, opts.root_rot),
