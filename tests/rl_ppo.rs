@@ -812,3 +812,89 @@ fn correlated_action_noise_keeps_its_direction_within_episodes_and_its_variance(
     };
     assert!(e.to_string().contains("noise_correlation"), "{e}");
 }
+
+// ---- action dimensions out of the Gaussian (`PpoConfig::free_dims`) ----
+
+/// [`small_cfg`] with the second of the point mass's two action
+/// dimensions not free.
+fn one_free_cfg() -> PpoConfig {
+    PpoConfig {
+        free_dims: vec![true, false],
+        ..small_cfg()
+    }
+}
+
+#[test]
+fn a_dimension_that_is_not_free_takes_its_mean_and_stays_out_of_the_likelihood() {
+    let cfg = one_free_cfg();
+    let mut r = start_with(21, &cfg);
+    let obs = r.env.observe();
+    let n = obs.len() / OBS_DIM;
+    let mean = r.agent.act(&obs, true, &mut r.rng).unwrap();
+    let drawn = r.agent.act(&obs, false, &mut r.rng).unwrap();
+    let std = cfg.std();
+    let logc = 0.5 * std::f64::consts::TAU.ln() + std.ln();
+    for e in 0..n {
+        let (m, a) = (&mean.actions[e * 2..e * 2 + 2], &drawn.actions[e * 2..e * 2 + 2]);
+        // the free dimension is drawn, the other is its mean exactly
+        assert_ne!(a[0], m[0], "env {e}: the free dimension got no noise");
+        assert_eq!(a[1], m[1], "env {e}: the dimension that is not free got noise");
+        // log π is the one-dimensional Gaussian's of the free dimension
+        let z = (a[0] as f64 - m[0] as f64) / std;
+        let want = -0.5 * z * z - logc;
+        assert!(
+            (drawn.logp[e] as f64 - want).abs() < 1e-4,
+            "env {e}: log-probability {} against {want}",
+            drawn.logp[e]
+        );
+    }
+    assert_eq!(r.agent.free_count(), 1);
+
+    // an update does not read the actions of a dimension that is not free:
+    // the same rollout with those actions moved by 0.7 gives the same
+    // weights bit for bit, and the same shift moves an agent whose every
+    // dimension is free
+    let ro = collect(&r.agent, &mut r.env, HORIZON, &mut r.tracker, &mut r.rng).unwrap();
+    let mut bytes = ro.to_le_bytes().unwrap();
+    let tn = HORIZON * N_ENVS;
+    for i in 0..tn {
+        let at = 4 * (tn * OBS_DIM + i * ACT_DIM + 1);
+        let x = f32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) + 0.7;
+        bytes[at..at + 4].copy_from_slice(&x.to_le_bytes());
+    }
+    let moved = Rollout::from_le_bytes(N_ENVS, OBS_DIM, ACT_DIM, HORIZON, &bytes).unwrap();
+    assert_ne!(moved, ro);
+    let updated = |cfg: &PpoConfig, ro: &Rollout, autograd: bool| {
+        let mut a = Agent::new(OBS_DIM, ACT_DIM, cfg, 21, &Device::Cpu).unwrap();
+        a.use_autograd(autograd);
+        a.update(ro, &mut ChaCha8Rng::seed_from_u64(4)).unwrap();
+        weights(&a)
+    };
+    for autograd in [false, true] {
+        assert_eq!(
+            updated(&cfg, &ro, autograd),
+            updated(&cfg, &moved, autograd),
+            "autograd {autograd}: the actions of a dimension that is not free moved the update"
+        );
+        assert_ne!(
+            updated(&small_cfg(), &ro, autograd),
+            updated(&small_cfg(), &moved, autograd),
+            "autograd {autograd}: the shifted actions changed nothing with every dimension free"
+        );
+    }
+    // the two updates still take the same step
+    let rel = flat_against_autograd(&cfg, false);
+    assert!(rel < 1e-3, "flat and autograd differ by {rel:.2e} of the step");
+
+    // a mask of the wrong length, or one with no free dimension, is refused
+    for bad in [vec![true], vec![false, false]] {
+        let cfg = PpoConfig {
+            free_dims: bad.clone(),
+            ..small_cfg()
+        };
+        let Err(e) = Agent::new(OBS_DIM, ACT_DIM, &cfg, 1, &Device::Cpu) else {
+            panic!("free_dims {bad:?} was accepted");
+        };
+        assert!(e.to_string().contains("free_dims"), "{bad:?}: {e}");
+    }
+}

@@ -2547,16 +2547,135 @@ fn a_residual_scale_shrinks_the_policy_s_part_of_the_pd_targets_on_its_joints() 
         ],
         "train.residual_scale_joints = \"arms\"",
     );
-    for bad in ["2", "0"] {
-        refused(
-            &run,
-            &[
-                "train.residual_action=true",
-                &format!("train.residual_scale={bad}"),
-            ],
-            &format!("train.residual_scale = {bad}: must be a finite number in [0.01, 1]"),
-        );
+    refused(
+        &run,
+        &["train.residual_action=true", "train.residual_scale=2"],
+        "train.residual_scale = 2: must be a finite number in [0, 1]",
+    );
+    refused(
+        &run,
+        &["train.residual_action=true", "train.residual_scale=0.005"],
+        "train.residual_scale = 0.005 must be 0 (no residual on its joints) or in [0.01, 1]",
+    );
+    refused(
+        &run,
+        &["train.residual_action=true", "train.residual_scale=0"],
+        "train.residual_scale = 0 on every joint leaves the policy no action",
+    );
+}
+
+#[test]
+fn a_residual_scale_of_0_leaves_the_fingers_to_the_feed_forward_and_out_of_the_gaussian() {
+    use skillaug::rl::humanoid::{residual_gain, JointSet};
+    use skillaug::rl::trainer::free_dims;
+    let cfg = TrainConfig {
+        skills: vec!["run".into()],
+        residual_action: true,
+        ..TrainConfig::default()
+    };
+    let (_dir, s) = ballplay_setup(&cfg);
+    // the fingers of BallPlay's model: the 30 bodies below the wrists, 90
+    // of the 156 action values; no wrist among them, every one in the arms
+    let fingers = JointSet::Fingers.mask(&s.model);
+    let arms = JointSet::Arms.mask(&s.model);
+    assert_eq!(fingers.iter().filter(|f| **f).count(), 30);
+    for (j, on) in fingers.iter().enumerate() {
+        let name = &s.model.bodies[j + 1].name;
+        let finger = ["Index", "Middle", "Pinky", "Ring", "Thumb"]
+            .iter()
+            .any(|f| name.contains(f));
+        assert_eq!(*on, finger, "joint {j} ({name})");
+        assert!(!on || arms[j], "joint {j} ({name}) is a finger off the arms");
     }
+    let zero = TrainConfig {
+        residual_scale: 0.0,
+        residual_scale_joints: JointSet::Fingers,
+        ..cfg.clone()
+    };
+    let free = free_dims(&zero, &s.model);
+    assert_eq!(free.len(), 156);
+    assert_eq!(free.iter().filter(|f| !**f).count(), 90);
+    for (j, on) in fingers.iter().enumerate() {
+        assert_eq!(free[3 * j..3 * j + 3], [!on; 3], "joint {j}");
+    }
+    assert_eq!(residual_gain(&fingers, 0.0).iter().filter(|g| **g == 0.0).count(), 90);
+    // any other scale leaves every dimension free
+    for other in [
+        cfg.clone(),
+        TrainConfig {
+            residual_scale: 0.5,
+            ..zero.clone()
+        },
+    ] {
+        assert!(free_dims(&other, &s.model).is_empty());
+    }
+
+    // in the simulation, actions that differ on the fingers alone step the
+    // same worlds bit for bit with the scale 0, and other worlds without
+    let stepped = |cfg: &TrainConfig, finger_action: f32| {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let n = 3;
+        let mut env = environment(&s, cfg, None, n, &[], &mut rng).unwrap();
+        let ad = env.act_dim();
+        let mut a = vec![0.02f32; n * ad];
+        for (i, x) in a.iter_mut().enumerate() {
+            if fingers[i % ad / 3] {
+                *x = finger_action;
+            }
+        }
+        let mut obs = Vec::new();
+        for _ in 0..5 {
+            let r = env.step(&a, &mut rng).unwrap();
+            obs.extend(r.final_obs.iter().map(|x| x.to_bits()));
+            obs.extend(r.rewards.iter().map(|x| x.to_bits()));
+        }
+        obs
+    };
+    assert_eq!(stepped(&zero, 0.0), stepped(&zero, 0.6));
+    assert_ne!(stepped(&cfg, 0.0), stepped(&cfg, 0.6));
+
+    // a tiny training run says so in its banner, and its policy carries the
+    // setting to the evaluation
+    let (dir, run) = ingested("ballplay");
+    let out = dir.path().join("fingers0");
+    let mut args = train_args(
+        run.to_str().unwrap(),
+        out.to_str().unwrap(),
+        &[
+            "--set",
+            "train.skills=[\"run\"]",
+            "--set",
+            "train.residual_action=true",
+            "--set",
+            "train.residual_scale=0",
+            "--set",
+            "train.residual_scale_joints=fingers",
+            "--set",
+            "train.samples=32",
+        ],
+    );
+    args.retain(|a| *a != "-q"); // the banner
+    let text = ok(&args);
+    assert!(
+        text.contains(
+            "residual_scale=0 (fingers: the feed-forward pose alone, 90 action values out of the \
+             policy's Gaussian)"
+        ),
+        "{text}"
+    );
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("policy.meta.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["train"]["residual_scale"], 0.0);
+    assert_eq!(meta["train"]["residual_scale_joints"], "fingers");
+}
+
+#[test]
+fn a_run_with_the_fingers_out_of_the_gaussian_killed_and_resumed_matches_too() {
+    killed_and_resumed_on_df_with(&[
+        "train.residual_scale=0",
+        "train.residual_scale_joints=fingers",
+    ]);
 }
 
 #[test]

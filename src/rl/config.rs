@@ -195,16 +195,17 @@ pub struct TrainConfig {
     /// residual actions. Not written when off.
     #[serde(skip_serializing_if = "is_false")]
     pub velocity_feed_forward: bool,
-    /// Which joints get those target velocities: `"all"`, or `"arms"`
-    /// (shoulders, elbows, wrists and the hands; the other joints keep zero
+    /// Which joints get those target velocities: `"all"`, `"arms"`
+    /// (shoulders, elbows, wrists and the hands) or `"fingers"` (the bodies
+    /// below a wrist; the other joints keep zero
     /// target velocities; no effect without `velocity_feed_forward`)
     /// ([`crate::rl::humanoid::EnvConfig::velocity_feed_forward_joints`]).
     /// Not written when `"all"`.
     #[serde(skip_serializing_if = "is_all_joints")]
     pub velocity_feed_forward_joints: JointSet,
     /// Which joints' action noise follows `ppo.noise_correlation`: `"all"`,
-    /// or `"arms"` (shoulders, elbows, wrists and the hands, as for
-    /// `velocity_feed_forward_joints`; the other joints keep independent
+    /// `"arms"` or `"fingers"` (as for `velocity_feed_forward_joints`; the
+    /// other joints keep independent
     /// noise at every step; no effect without `ppo.noise_correlation`)
     /// ([`crate::rl::ppo::PpoConfig::noise_correlated_dims`]). Not written
     /// when `"all"`.
@@ -214,13 +215,20 @@ pub struct TrainConfig {
     /// joints in `residual_scale_joints`, so their PD targets are
     /// π·clamp(f + scale·a, −1, 1), f the feed-forward action
     /// ([`crate::rl::humanoid::EnvConfig::residual_scale`]); 1 = f + a on
-    /// every joint. In training and in the evaluation of the policy. Not
-    /// in the paper or the reference code. Not written when 1.
+    /// every joint; 0 (not with `"all"` joints) removes those joints'
+    /// residual, 0 < scale < 0.01 is refused. In training and in the
+    /// evaluation of the policy. Not in the paper or the reference code.
+    /// Not written when 1.
     #[serde(skip_serializing_if = "is_one_f64")]
     pub residual_scale: f64,
-    /// Which joints' residual `residual_scale` scales: `"all"`, or
-    /// `"arms"` (shoulders, elbows, wrists and the hands, as for
-    /// `velocity_feed_forward_joints`). Not written when `"all"`.
+    /// Which joints' residual `residual_scale` scales: `"all"`, `"arms"`
+    /// (shoulders, elbows, wrists and the hands, as for
+    /// `velocity_feed_forward_joints`) or `"fingers"` (the bodies below a
+    /// wrist). With `residual_scale = 0` those joints take the feed-forward
+    /// pose alone and their action values leave the policy's Gaussian: no
+    /// exploration noise and no log-likelihood term
+    /// ([`crate::rl::ppo::PpoConfig::free_dims`]). Not written when
+    /// `"all"`.
     #[serde(skip_serializing_if = "is_all_joints")]
     pub residual_scale_joints: JointSet,
     /// Steps over which a continued reference blends from the frame its
@@ -828,7 +836,20 @@ impl crate::config::Validate for TrainConfig {
                 self.push_objective.name()
             );
         }
-        c.range("residual_scale", self.residual_scale, 0.01, 1.0)?;
+        c.range("residual_scale", self.residual_scale, 0.0, 1.0)?;
+        if self.residual_scale > 0.0 && self.residual_scale < 0.01 {
+            anyhow::bail!(
+                "{stage}.residual_scale = {} must be 0 (no residual on its joints) or in \
+                 [0.01, 1]",
+                self.residual_scale
+            );
+        }
+        if self.residual_scale == 0.0 && self.residual_scale_joints == JointSet::All {
+            anyhow::bail!(
+                "{stage}.residual_scale = 0 on every joint leaves the policy no action: set \
+                 {stage}.residual_scale_joints to \"arms\" or \"fingers\", or a scale above 0"
+            );
+        }
         if self.residual_scale != 1.0 && !self.residual_action {
             anyhow::bail!(
                 "{stage}.residual_scale = {} scales the policy's residual of \

@@ -215,7 +215,10 @@ pub struct EnvConfig {
     /// targets are π·clamp(f + scale·a, −1, 1) rad, f the feed-forward
     /// action (`Episode::ff`): the feed-forward pose weighs more against
     /// the policy's correction, and the action noise moves those targets
-    /// `scale` times as far; 1 = f + a on every joint.
+    /// `scale` times as far; 1 = f + a on every joint; 0 = the
+    /// feed-forward pose alone on those joints (the trainer then leaves
+    /// their action values out of the policy's Gaussian,
+    /// [`crate::rl::ppo::PpoConfig::free_dims`]).
     pub residual_scale: f32,
     /// Which joints' residual [`EnvConfig::residual_scale`] scales.
     pub residual_scale_joints: JointSet,
@@ -1168,14 +1171,20 @@ pub enum JointSet {
     /// target velocity, so they damp as in the reference code while the
     /// hands follow the clip's pushes.
     Arms,
+    /// The fingers only: every body below a wrist, the wrists themselves
+    /// left out ([`crate::sim::world::hand_bodies`] less the bodies whose
+    /// name holds `Wrist`; BallPlay: 30 of 52 joints, 90 of the 156
+    /// action values).
+    Fingers,
 }
 
 impl JointSet {
-    /// The set's name in the settings: `all` or `arms`.
+    /// The set's name in the settings: `all`, `arms` or `fingers`.
     pub fn name(self) -> &'static str {
         match self {
             JointSet::All => "all",
             JointSet::Arms => "arms",
+            JointSet::Fingers => "fingers",
         }
     }
 
@@ -1192,6 +1201,12 @@ impl JointSet {
                     m[j] = true;
                 }
                 m
+            }
+            JointSet::Fingers => {
+                let hand = crate::sim::world::hand_bodies(model);
+                (0..nj)
+                    .map(|j| hand[j + 1] && !model.bodies[j + 1].name.contains("Wrist"))
+                    .collect()
             }
         }
     }
@@ -2239,7 +2254,16 @@ impl<'a> HumanoidEnv<'a> {
                             if !g.is_empty() {
                                 t.iter_mut()
                                     .zip(g)
-                                    .for_each(|(t, g)| *t = (*t / g).clamp(-1.0, 1.0));
+                                    .for_each(|(t, g)| {
+                                        // a gain of 0 leaves the value no
+                                        // residual to fit (its joint takes
+                                        // the feed-forward pose alone)
+                                        *t = if *g == 0.0 {
+                                            0.0
+                                        } else {
+                                            (*t / g).clamp(-1.0, 1.0)
+                                        }
+                                    });
                             }
                             t
                         }

@@ -147,10 +147,37 @@ pub struct PpoConfig {
     /// empty.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub noise_correlated_dims: Vec<bool>,
+    /// `[act_dim]`, or empty for every dimension: the action dimensions the
+    /// Gaussian policy explores and is scored on. A dimension that is not
+    /// free is taken at the mean μ with no noise and left out of the
+    /// log-probability (so the ratio, the clip and the KL of the update see
+    /// only the free dimensions, and μ there gets no policy gradient, only
+    /// the bounds loss's). For action values that do not move the
+    /// simulation (`train.residual_scale = 0` on some joints). Not written
+    /// when empty.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub free_dims: Vec<bool>,
 }
 
 fn is_zero(x: &f64) -> bool {
     *x == 0.0
+}
+
+/// The free dimensions of `free` ([`PpoConfig::free_dims`]; all `d` when
+/// it is empty).
+pub(super) fn free_count(free: &[bool], d: usize) -> usize {
+    if free.is_empty() {
+        d
+    } else {
+        free.iter().filter(|&&f| f).count()
+    }
+}
+
+/// log((2π)^(d/2) σ^d): the normaliser of a d-dimensional Gaussian with
+/// standard deviation σ in every dimension.
+pub(super) fn log_normaliser(d: usize, std: f64) -> f64 {
+    let d = d as f64;
+    0.5 * d * std::f64::consts::TAU.ln() + d * std.ln()
 }
 
 impl Default for PpoConfig {
@@ -180,6 +207,7 @@ impl Default for PpoConfig {
             lr_max: 1e-2,
             noise_correlation: 0.0,
             noise_correlated_dims: Vec::new(),
+            free_dims: Vec::new(),
         }
     }
 }
@@ -718,6 +746,13 @@ impl Agent {
             "ppo: noise_correlated_dims has {} entries for {act_dim} action dimensions",
             cfg.noise_correlated_dims.len()
         );
+        ensure!(
+            cfg.free_dims.is_empty()
+                || (cfg.free_dims.len() == act_dim && cfg.free_dims.iter().any(|&f| f)),
+            "ppo: free_dims has {} entries ({} free) for {act_dim} action dimensions",
+            cfg.free_dims.len(),
+            cfg.free_dims.iter().filter(|&&f| f).count()
+        );
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut sizes = vec![obs_dim];
         sizes.extend_from_slice(&cfg.hidden);
@@ -909,12 +944,21 @@ impl Agent {
         );
         let values = self.denorm_values(self.vf.forward(&x)?.flatten_all()?.to_vec1::<f32>()?);
         let d = self.act_dim;
+        let free = &self.cfg.free_dims;
+        let is_free = |k: usize| free.is_empty() || free[k];
         let actions: Vec<f32> = mu
             .iter()
             .zip(z)
-            .map(|(&m, &z)| (m as f64 + self.std * z) as f32)
+            .enumerate()
+            .map(|(i, (&m, &z))| {
+                if is_free(i % d) {
+                    (m as f64 + self.std * z) as f32
+                } else {
+                    m
+                }
+            })
             .collect();
-        let c = 0.5 * d as f64 * std::f64::consts::TAU.ln() + d as f64 * self.std.ln();
+        let c = log_normaliser(self.free_count(), self.std);
         let logp = actions
             .chunks_exact(d)
             .zip(mu.chunks_exact(d))
@@ -922,7 +966,9 @@ impl Agent {
                 let q: f64 = a
                     .iter()
                     .zip(m)
-                    .map(|(&a, &m)| ((a as f64 - m as f64) / self.std).powi(2))
+                    .enumerate()
+                    .filter(|(k, _)| is_free(*k))
+                    .map(|(_, (&a, &m))| ((a as f64 - m as f64) / self.std).powi(2))
                     .sum();
                 (-0.5 * q - c) as f32
             })
@@ -932,6 +978,12 @@ impl Agent {
             logp,
             values,
         })
+    }
+
+    /// How many action dimensions the Gaussian policy explores and scores
+    /// ([`PpoConfig::free_dims`]; every one when it is empty).
+    pub fn free_count(&self) -> usize {
+        free_count(&self.cfg.free_dims, self.act_dim)
     }
 
     /// Correlation of the action noise between steps
@@ -1142,8 +1194,7 @@ impl Agent {
         comm: &dyn Comm,
     ) -> Result<StepOut> {
         let [obs, act, old_logp, old_v, adv, ret] = t;
-        let d = self.act_dim as f64;
-        let logc = 0.5 * d * std::f64::consts::TAU.ln() + d * self.std.ln();
+        let logc = log_normaliser(self.free_count(), self.std);
         let eps = self.cfg.clip;
         let idx = Tensor::from_slice(chunk, chunk.len(), &self.dev)?;
         let x = obs.index_select(&idx, 0)?;
@@ -1153,7 +1204,12 @@ impl Agent {
         let ad = adv.index_select(&idx, 0)?;
         let rt = ret.index_select(&idx, 0)?;
         let mu = self.pi.forward_const_input(&x)?;
-        let z = (a - &mu)?.affine(1.0 / self.std, 0.0)?;
+        let mut z = (a - &mu)?.affine(1.0 / self.std, 0.0)?;
+        if !self.cfg.free_dims.is_empty() {
+            let m: Vec<f32> = self.cfg.free_dims.iter().map(|&f| f as u8 as f32).collect();
+            let m = Tensor::from_vec(m, (1, self.act_dim), &self.dev)?;
+            z = z.broadcast_mul(&m)?;
+        }
         let logp = z.sqr()?.sum(D::Minus1)?.affine(-0.5, -logc)?;
         let log_ratio = (logp - &olp)?.clamp(-20f32, 20f32)?;
         let ratio = log_ratio.exp()?;

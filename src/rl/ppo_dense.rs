@@ -197,8 +197,8 @@ impl DenseUpdate {
         }
         let inv_b = 1.0 / rows as f32;
         let inv_std = (1.0 / std) as f32;
-        let d = ad as f64;
-        let logc = (0.5 * d * std::f64::consts::TAU.ln() + d * std.ln()) as f32;
+        let free = &cfg.free_dims;
+        let logc = super::ppo::log_normaliser(super::ppo::free_count(free, ad), std) as f32;
         let eps = cfg.clip as f32;
         let soft = cfg.bounds_soft as f32;
         let bcoef = cfg.bounds_coef as f32;
@@ -216,7 +216,12 @@ impl DenseUpdate {
             let g = &mut self.g_mu[r * ad..(r + 1) * ad];
             let mut sq = 0f32;
             for j in 0..ad {
-                let z = (a[j] - mu[j]) * inv_std;
+                // a dimension that is not free is out of the likelihood
+                let z = if free.is_empty() || free[j] {
+                    (a[j] - mu[j]) * inv_std
+                } else {
+                    0.0
+                };
                 g[j] = z;
                 sq += z * z;
             }

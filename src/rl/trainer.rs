@@ -510,6 +510,22 @@ pub fn environment<'a>(
     environment_with(s, &s.clips, s.stf.clone(), env_cfg, he, n, rng)
 }
 
+/// The action dimensions the policy's Gaussian explores and scores
+/// ([`crate::rl::ppo::PpoConfig::free_dims`], `[J*3]`, three per joint of
+/// `model`): every one but those of the joints that `residual_scale = 0`
+/// leaves to the feed-forward pose (`train.residual_scale_joints`); empty
+/// (all free) otherwise.
+pub fn free_dims(cfg: &TrainConfig, model: &Model) -> Vec<bool> {
+    if !(cfg.residual_action && cfg.residual_scale == 0.0) {
+        return Vec::new();
+    }
+    cfg.residual_scale_joints
+        .mask(model)
+        .into_iter()
+        .flat_map(|on| [!on; 3])
+        .collect()
+}
+
 /// The feed-forward push offsets of `train.push_feed_forward` with
 /// `train.push_objective` ([`searched_pushes`]; empty when off).
 ///
@@ -1235,6 +1251,7 @@ impl<'a> Trainer<'a> {
                 .flat_map(|on| [on; 3])
                 .collect();
         }
+        ppo.free_dims = free_dims(cfg, &s.model);
         let mut agent = Agent::new(env.obs_dim(), env.act_dim(), &ppo, seed, inp.dev)?;
         let mut warm_start = None;
         if cfg.warm_start_epochs > 0 {
@@ -1514,10 +1531,15 @@ impl<'a> Trainer<'a> {
             on.push(format!(
                 "residual_scale={}{}",
                 cfg.residual_scale,
-                if cfg.residual_scale_joints == JointSet::Arms {
-                    " (arms)"
-                } else {
-                    ""
+                match cfg.residual_scale_joints {
+                    JointSet::All => String::new(),
+                    j if cfg.residual_scale == 0.0 => format!(
+                        " ({}: the feed-forward pose alone, {} action values out of the policy's \
+                         Gaussian)",
+                        j.name(),
+                        free_dims(cfg, &self.s.model).iter().filter(|&&f| !f).count()
+                    ),
+                    j => format!(" ({})", j.name()),
                 }
             ));
         }
@@ -1552,7 +1574,8 @@ impl<'a> Trainer<'a> {
         }
         if cfg.noise_correlation_joints != JointSet::All {
             on.push(format!(
-                "noise_correlation_joints=arms{}",
+                "noise_correlation_joints={}{}",
+                cfg.noise_correlation_joints.name(),
                 if cfg.ppo_config().noise_correlation > 0.0 {
                     ""
                 } else {
