@@ -835,10 +835,16 @@ fn a_dimension_that_is_not_free_takes_its_mean_and_stays_out_of_the_likelihood()
     let std = cfg.std();
     let logc = 0.5 * std::f64::consts::TAU.ln() + std.ln();
     for e in 0..n {
-        let (m, a) = (&mean.actions[e * 2..e * 2 + 2], &drawn.actions[e * 2..e * 2 + 2]);
+        let (m, a) = (
+            &mean.actions[e * 2..e * 2 + 2],
+            &drawn.actions[e * 2..e * 2 + 2],
+        );
         // the free dimension is drawn, the other is its mean exactly
         assert_ne!(a[0], m[0], "env {e}: the free dimension got no noise");
-        assert_eq!(a[1], m[1], "env {e}: the dimension that is not free got noise");
+        assert_eq!(
+            a[1], m[1],
+            "env {e}: the dimension that is not free got noise"
+        );
         // log π is the one-dimensional Gaussian's of the free dimension
         let z = (a[0] as f64 - m[0] as f64) / std;
         let want = -0.5 * z * z - logc;
@@ -884,7 +890,10 @@ fn a_dimension_that_is_not_free_takes_its_mean_and_stays_out_of_the_likelihood()
     }
     // the two updates still take the same step
     let rel = flat_against_autograd(&cfg, false);
-    assert!(rel < 1e-3, "flat and autograd differ by {rel:.2e} of the step");
+    assert!(
+        rel < 1e-3,
+        "flat and autograd differ by {rel:.2e} of the step"
+    );
 
     // a mask of the wrong length, or one with no free dimension, is refused
     for bad in [vec![true], vec![false, false]] {

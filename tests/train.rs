@@ -2585,7 +2585,10 @@ fn a_residual_scale_of_0_leaves_the_fingers_to_the_feed_forward_and_out_of_the_g
             .iter()
             .any(|f| name.contains(f));
         assert_eq!(*on, finger, "joint {j} ({name})");
-        assert!(!on || arms[j], "joint {j} ({name}) is a finger off the arms");
+        assert!(
+            !on || arms[j],
+            "joint {j} ({name}) is a finger off the arms"
+        );
     }
     let zero = TrainConfig {
         residual_scale: 0.0,
@@ -2598,7 +2601,13 @@ fn a_residual_scale_of_0_leaves_the_fingers_to_the_feed_forward_and_out_of_the_g
     for (j, on) in fingers.iter().enumerate() {
         assert_eq!(free[3 * j..3 * j + 3], [!on; 3], "joint {j}");
     }
-    assert_eq!(residual_gain(&fingers, 0.0).iter().filter(|g| **g == 0.0).count(), 90);
+    assert_eq!(
+        residual_gain(&fingers, 0.0)
+            .iter()
+            .filter(|g| **g == 0.0)
+            .count(),
+        90
+    );
     // any other scale leaves every dimension free
     for other in [
         cfg.clone(),

@@ -2252,18 +2252,16 @@ impl<'a> HumanoidEnv<'a> {
                             let mut t = feed_forward(o);
                             let g = &self.ctx.residual_gain;
                             if !g.is_empty() {
-                                t.iter_mut()
-                                    .zip(g)
-                                    .for_each(|(t, g)| {
-                                        // a gain of 0 leaves the value no
-                                        // residual to fit (its joint takes
-                                        // the feed-forward pose alone)
-                                        *t = if *g == 0.0 {
-                                            0.0
-                                        } else {
-                                            (*t / g).clamp(-1.0, 1.0)
-                                        }
-                                    });
+                                t.iter_mut().zip(g).for_each(|(t, g)| {
+                                    // a gain of 0 leaves the value no
+                                    // residual to fit (its joint takes
+                                    // the feed-forward pose alone)
+                                    *t = if *g == 0.0 {
+                                        0.0
+                                    } else {
+                                        (*t / g).clamp(-1.0, 1.0)
+                                    }
+                                });
                             }
                             t
                         }

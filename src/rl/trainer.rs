@@ -1533,7 +1533,8 @@ impl<'a> Trainer<'a> {
                 cfg.residual_scale,
                 match cfg.residual_scale_joints {
                     JointSet::All => String::new(),
-                    j if cfg.residual_scale == 0.0 => format!(
+                    j if cfg.residual_scale == 0.0 =>
+                        format!(
                         " ({}: the feed-forward pose alone, {} action values out of the policy's \
                          Gaussian)",
                         j.name(),
