@@ -724,6 +724,10 @@ pub struct Agent {
     /// Minibatch steps on candle's autograd even on the CPU
     /// ([`Agent::use_autograd`]).
     autograd: bool,
+    /// `[1, act_dim]`: 1 on a free dimension, 0 elsewhere
+    /// ([`PpoConfig::free_dims`]); `None` when every one is free. Built
+    /// once for the autograd step's likelihood.
+    free_mask: Option<Tensor>,
 }
 
 impl Agent {
@@ -771,6 +775,12 @@ impl Agent {
         let vf = Mlp::with_init(&mut params, "vf", &sizes, init, &mut rng, dev)?;
         let vars = params.named();
         let adam = Adam::new(&vars)?;
+        let free_mask = if cfg.free_dims.is_empty() {
+            None
+        } else {
+            let m: Vec<f32> = cfg.free_dims.iter().map(|&f| f as u8 as f32).collect();
+            Some(Tensor::from_vec(m, (1, act_dim), dev)?)
+        };
         Ok(Agent {
             std: cfg.std(),
             cfg: cfg.clone(),
@@ -785,6 +795,7 @@ impl Agent {
             lr_now: cfg.lr,
             dev: dev.clone(),
             autograd: false,
+            free_mask,
         })
     }
 
@@ -1205,10 +1216,8 @@ impl Agent {
         let rt = ret.index_select(&idx, 0)?;
         let mu = self.pi.forward_const_input(&x)?;
         let mut z = (a - &mu)?.affine(1.0 / self.std, 0.0)?;
-        if !self.cfg.free_dims.is_empty() {
-            let m: Vec<f32> = self.cfg.free_dims.iter().map(|&f| f as u8 as f32).collect();
-            let m = Tensor::from_vec(m, (1, self.act_dim), &self.dev)?;
-            z = z.broadcast_mul(&m)?;
+        if let Some(m) = &self.free_mask {
+            z = z.broadcast_mul(m)?;
         }
         let logp = z.sqr()?.sum(D::Minus1)?.affine(-0.5, -logc)?;
         let log_ratio = (logp - &olp)?.clamp(-20f32, 20f32)?;
