@@ -12,6 +12,8 @@ use sha2::{Digest, Sha256};
 use skillaug::sim::mjcf::Model;
 use std::collections::HashMap;
 use std::ops::Range;
+use std::path::Path;
+use std::process::Command;
 
 const HUMANOID: &str = "mocap_humanoid.xml";
 const PARAHOME: &str = "mocap_parahome_boxhand.xml";
@@ -757,4 +759,74 @@ fn empty_density_stays_the_default_density() {
     );
     let v2 = edit(&v2, "L_Knee", "geom", 0, "class", Some("heavy"));
     assert_eq!(parse(&v2).bodies[2].geoms[0].density, Some(700.0));
+}
+
+/// `stages/scale_kp.py DATA_ROOT OUT FACTOR arms|rest` (the per-joint
+/// stiffness A/Bs of docs/training.md, "A stiffer drive on some joints"):
+/// read back by the trainer's own reader, the copy's humanoid differs from
+/// the shipped one only in the kp of the chosen joints, times the factor;
+/// `arms` is the trainer's `JointSet::Arms` and `rest` its complement. A
+/// second run into the same folder is refused, leaving it as it was.
+#[test]
+fn scale_kp_stiffens_only_the_chosen_joints() {
+    use skillaug::rl::humanoid::JointSet;
+    let root = common::data_root();
+    let shipped = Model::load(&root.join("assets/mjcf").join(HUMANOID)).unwrap();
+    let arms = JointSet::Arms.mask(&shipped);
+    let dir = tempfile::tempdir().unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("stages/scale_kp.py");
+    for which in ["arms", "rest"] {
+        let out = dir.path().join(which);
+        let run = || {
+            Command::new("python3")
+                .arg(&script)
+                .arg(&root)
+                .arg(&out)
+                .arg("4")
+                .arg(which)
+                .output()
+                .expect("python3 runs")
+        };
+        let first = run();
+        assert!(
+            first.status.success(),
+            "{which}: {}",
+            String::from_utf8_lossy(&first.stderr)
+        );
+        let model = Model::load(&out.join("assets/mjcf").join(HUMANOID)).unwrap();
+        assert_eq!(model.names(), shipped.names());
+        let mut scaled = 0;
+        for (j, (b, s)) in model.bodies.iter().zip(&shipped.bodies).enumerate() {
+            assert_eq!(b.geoms, s.geoms, "{}", b.name);
+            assert_eq!(b.pos, s.pos, "{}", b.name);
+            assert_eq!(b.hinges.len(), s.hinges.len(), "{}", b.name);
+            let chosen = j > 0 && (arms[j - 1] == (which == "arms"));
+            for (h, hs) in b.hinges.iter().zip(&s.hinges) {
+                let kp = if chosen {
+                    4.0 * hs.stiffness
+                } else {
+                    hs.stiffness
+                };
+                assert_eq!(h.stiffness, kp, "{which}: {}", h.name);
+                assert_eq!((h.damping, h.armature), (hs.damping, hs.armature));
+                scaled += chosen as usize;
+            }
+        }
+        // BallPlay: 36 of the 52 joints are the arms', three hinges each.
+        assert_eq!(scaled, if which == "arms" { 108 } else { 48 });
+        // The clips are the shipped ones, through links.
+        assert!(out.join("ballplay").exists());
+        let before = std::fs::read(out.join("assets/mjcf").join(HUMANOID)).unwrap();
+        let again = run();
+        assert!(!again.status.success());
+        assert!(
+            String::from_utf8_lossy(&again.stderr).contains("already exists"),
+            "{}",
+            String::from_utf8_lossy(&again.stderr)
+        );
+        assert_eq!(
+            std::fs::read(out.join("assets/mjcf").join(HUMANOID)).unwrap(),
+            before
+        );
+    }
 }
