@@ -5,7 +5,8 @@ some joints, for A/Bs of a per-joint PD stiffness without a new setting.
 
 OUT_ROOT gets a symbolic link to every entry of DATA_ROOT except
 `assets/mjcf/mocap_humanoid.xml`, which is rewritten with the `stiffness`
-(kp) of the chosen hinges multiplied by FACTOR; `damping` (kd) and every
+(kp) of the chosen hinges multiplied by FACTOR (a finite number above 0,
+written back exactly); `damping` (kd) and every
 other attribute are left as they are. `arms` picks every hinge of the
 shoulder subtrees (the shoulders, elbows, wrists and fingers: 36 joints of
 three hinges each, the joints of `train.residual_scale_joints = "arms"`);
@@ -15,12 +16,20 @@ chest, neck, head, thoraxes). Train and evaluate with `--data-root OUT_ROOT`
 one `<joint .../>` element at a time, so the file keeps its layout.
 """
 
+import math
 import os
 import re
 import sys
 import xml.etree.ElementTree as ET
 
 MODEL = os.path.join("assets", "mjcf", "mocap_humanoid.xml")
+
+
+def number(v):
+    """`v` as MJCF text that reads back to the same float: whole numbers as
+    integers (the shipped files write kp so), others by the shortest
+    round-trip form (`%g` would keep only six significant digits)."""
+    return str(int(v)) if v.is_integer() else repr(v)
 
 
 def shoulder_hinges(root):
@@ -54,7 +63,13 @@ def link_tree(src, dst, keep):
 def main():
     if len(sys.argv) != 5 or sys.argv[4] not in ("arms", "rest"):
         sys.exit(__doc__)
-    src, dst, factor, which = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4]
+    src, dst, which = sys.argv[1], sys.argv[2], sys.argv[4]
+    try:
+        factor = float(sys.argv[3])
+    except ValueError:
+        factor = math.nan
+    if not (math.isfinite(factor) and factor > 0):
+        sys.exit(f"FACTOR {sys.argv[3]!r}: give a finite number above 0")
     model = os.path.join(src, MODEL)
     if not os.path.isfile(model):
         sys.exit(f"{model}: no such file (is {src} a data root?)")
@@ -77,7 +92,7 @@ def main():
         scaled += 1
         return re.sub(
             r'stiffness="([^"]+)"',
-            lambda s: 'stiffness="%g"' % (float(s.group(1)) * factor),
+            lambda s: f'stiffness="{number(float(s.group(1)) * factor)}"',
             element,
         )
 

@@ -766,7 +766,8 @@ fn empty_density_stays_the_default_density() {
 /// read back by the trainer's own reader, the copy's humanoid differs from
 /// the shipped one only in the kp of the chosen joints, times the factor;
 /// `arms` is the trainer's `JointSet::Arms` and `rest` its complement. A
-/// second run into the same folder is refused, leaving it as it was.
+/// second run into the same folder is refused, leaving it as it was, and
+/// so is a factor of 0.
 #[test]
 fn scale_kp_stiffens_only_the_chosen_joints() {
     use skillaug::rl::humanoid::JointSet;
@@ -775,18 +776,26 @@ fn scale_kp_stiffens_only_the_chosen_joints() {
     let arms = JointSet::Arms.mask(&shipped);
     let dir = tempfile::tempdir().unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("stages/scale_kp.py");
+    let scale = |out: &Path, factor: &str, which: &str| {
+        Command::new("python3")
+            .arg(&script)
+            .arg(&root)
+            .arg(out)
+            .arg(factor)
+            .arg(which)
+            .output()
+            .expect("python3 runs")
+    };
+    // A factor that is no positive finite number is refused, naming it,
+    // and nothing is written.
+    let bad = dir.path().join("bad");
+    let refused = scale(&bad, "0", "arms");
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("FACTOR '0'"));
+    assert!(!bad.exists());
     for which in ["arms", "rest"] {
         let out = dir.path().join(which);
-        let run = || {
-            Command::new("python3")
-                .arg(&script)
-                .arg(&root)
-                .arg(&out)
-                .arg("4")
-                .arg(which)
-                .output()
-                .expect("python3 runs")
-        };
+        let run = || scale(&out, "4", which);
         let first = run();
         assert!(
             first.status.success(),
